@@ -1,0 +1,1 @@
+"""The bench physics, the simulation loop (which owns the clock) and the CLI."""

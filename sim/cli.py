@@ -1,0 +1,51 @@
+"""The ``turntable-sim`` console command.
+
+Each subcommand is a module in ``sim/commands/`` with ``HELP`` (one line),
+``add_arguments(parser)`` and ``main(args) -> int``. Modules are imported only when their
+subcommand runs, so ``turntable-sim --help`` stays fast. Nothing imports this module.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from serial_protocol.exceptions import TurntableError
+
+# name -> (module, one-line help). Add a line here when a subcommand lands.
+COMMANDS: dict[str, tuple[str, str]] = {}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="turntable-sim",
+        description="Firmware-in-the-loop simulator of the seed-000 servo turntable.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module_name, help_text) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        p.set_defaults(_module=module_name)
+        importlib.import_module(module_name).add_arguments(p)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    module = importlib.import_module(args._module)
+    try:
+        return int(module.main(args) or 0)
+    except TurntableError as exc:
+        print(f"turntable-sim {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"turntable-sim {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of the ``turntable-sim`` console command, one module each."""
