@@ -1,0 +1,399 @@
+"""The frame codec: round trips, counters, Malformed, and the decoder's properties."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import struct
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from serial_protocol import frame
+from serial_protocol.frame import (
+    MAX_FRAME_BYTES,
+    MAX_PAYLOAD_BYTES,
+    TELEMETRY_FRAME_BYTES,
+    Decoder,
+    crc8,
+    crc16,
+    encode,
+    frame_bytes,
+    frame_raw,
+)
+from serial_protocol.messages import (
+    Ack,
+    ClearFault,
+    Fault,
+    FaultReport,
+    Gains,
+    GetGains,
+    GetLimits,
+    GetStatus,
+    Hello,
+    HelloReply,
+    Limits,
+    Loop,
+    Malformed,
+    Move,
+    MsgType,
+    Nack,
+    NackCode,
+    Profile,
+    SetEnable,
+    SetGains,
+    SetLimits,
+    SetTelemetry,
+    State,
+    Status,
+    Stop,
+    Telemetry,
+)
+
+# ------------------------------------------------------------------ strategies
+
+u8 = st.integers(0, 0xFF)
+u16 = st.integers(0, 0xFFFF)
+u32 = st.integers(0, 0xFFFFFFFF)
+f32 = st.floats(width=32, allow_nan=False)
+# values exactly representable on the wire: k * 1e-4 (decode divides by 1e4)
+pos = st.integers(-(2**31), 2**31 - 1).map(lambda k: k / 10_000.0)
+milli16 = st.integers(-(2**15), 2**15 - 1).map(lambda k: k / 1_000.0)
+duty = st.integers(-10_000, 10_000).map(lambda k: k / 10_000.0)
+
+BY_CLASS = {
+    Hello: st.just(Hello()),
+    Move: st.builds(Move, u16, pos, f32, f32, f32, st.sampled_from(Profile)),
+    Stop: st.builds(Stop, u16, f32),
+    SetGains: st.builds(SetGains, u16, st.sampled_from(Loop), f32, f32, f32),
+    GetGains: st.builds(GetGains, u16, st.sampled_from(Loop)),
+    SetLimits: st.builds(SetLimits, u16, f32, f32, f32, f32),
+    GetLimits: st.builds(GetLimits, u16),
+    GetStatus: st.builds(GetStatus, u16),
+    ClearFault: st.builds(ClearFault, u16),
+    SetEnable: st.builds(SetEnable, u16, st.booleans()),
+    SetTelemetry: st.builds(SetTelemetry, u16, u16),
+    HelloReply: st.builds(HelloReply, u8, u8, u8, u8, u16, u16),
+    Telemetry: st.builds(
+        Telemetry,
+        u32,
+        pos,
+        pos,
+        pos,
+        pos,
+        milli16,
+        duty,
+        st.sampled_from(State),
+        st.sampled_from(Fault),
+    ),
+    Ack: st.builds(Ack, u16, u8),
+    Nack: st.builds(Nack, u16, u8, st.sampled_from(NackCode)),
+    FaultReport: st.builds(FaultReport, u32, st.sampled_from(Fault), f32),
+    Gains: st.builds(Gains, u16, st.sampled_from(Loop), f32, f32, f32),
+    Limits: st.builds(Limits, u16, f32, f32, f32, f32),
+    Status: st.builds(
+        Status, u16, u32, st.sampled_from(State), st.sampled_from(Fault), pos, pos, pos
+    ),
+}
+MESSAGES = st.one_of(*BY_CLASS.values())
+
+
+def telemetry(tick: int) -> Telemetry:
+    """A distinct, easily recognised telemetry message per tick."""
+    return Telemetry(tick, tick * 0.5, 1.25, tick * 0.25, -2.5, 0.75, -0.125, State.MOVING, 0)
+
+
+def stream(n: int, first_seq: int = 0) -> tuple[list[Telemetry], list[bytes]]:
+    msgs = [telemetry(k) for k in range(n)]
+    return msgs, [encode(m, first_seq + k) for k, m in enumerate(msgs)]
+
+
+def decode_all(data: bytes) -> tuple[list, Decoder]:
+    decoder = Decoder()
+    out = decoder.feed(data)
+    out += decoder.flush()
+    return out, decoder
+
+
+# ------------------------------------------------------------------ CRCs and sizes
+
+
+def test_crc_check_values():
+    assert crc16(b"123456789") == 0x29B1  # CRC-16/CCITT-FALSE
+    assert crc8(b"123456789") == 0xF4  # CRC-8/SMBUS
+
+
+def test_every_message_type_has_a_codec_and_fits():
+    for msg_type in MsgType:
+        assert msg_type in frame._BY_TYPE
+    for codec in frame._BY_CLASS.values():
+        assert codec.payload.size <= MAX_PAYLOAD_BYTES
+
+
+def test_telemetry_frame_size_matches_layout():
+    # header 6 + tick 4 + 4 positions/velocities x 4 + current 2 + duty 2 + state 1 + fault 1
+    # + CRC 2
+    assert TELEMETRY_FRAME_BYTES == 6 + 4 + 16 + 2 + 2 + 1 + 1 + 2
+    assert len(encode(telemetry(1), 0)) == TELEMETRY_FRAME_BYTES
+
+
+def test_frame_layout_by_hand():
+    data = encode(Ack(0x1234, MsgType.MOVE), 9)
+    assert data[:2] == b"\xa5\x5a"
+    assert data[2] == 3 and data[3] == MsgType.ACK and data[4] == 9
+    assert data[5] == crc8(data[2:5])
+    assert data[6:9] == bytes((0x34, 0x12, MsgType.MOVE))
+    assert int.from_bytes(data[9:11], "little") == crc16(data[2:9])
+    assert frame_raw(MsgType.ACK, data[6:9], 9) == data
+
+
+# ------------------------------------------------------------------ round trips
+
+
+def test_strategies_cover_every_message_class():
+    assert set(BY_CLASS) == set(frame._BY_CLASS)
+
+
+@pytest.mark.parametrize("cls", list(BY_CLASS), ids=lambda c: c.__name__)
+@settings(max_examples=60)
+@given(data=st.data(), seq=u8)
+def test_round_trip_every_message(cls, data, seq):
+    msg = data.draw(BY_CLASS[cls])
+    encoded = encode(msg, seq)
+    assert len(encoded) == frame_bytes(cls)
+    decoder = Decoder()
+    assert decoder.feed(encoded) == [msg]
+    assert decoder.last_seq == seq
+    assert decoder.pending_bytes == 0
+
+
+def test_nan_and_infinity_travel_in_float_fields():
+    decoder = Decoder()
+    [move] = decoder.feed(encode(Move(1, 10.0, math.nan, math.inf, -math.inf), 0))
+    assert math.isnan(move.v_max_dps)
+    assert move.a_max_dps2 == math.inf and move.j_max_dps3 == -math.inf
+
+
+def test_telemetry_saturates_and_rejects_nan():
+    huge = Telemetry(2**32 + 5, 1e9, -math.inf, 0.0, 0.0, 100.0, -7.0, State.FAULT, 1)
+    [out] = Decoder().feed(encode(huge, 0))
+    assert out.tick == 5  # the tick counter wraps modulo 2**32
+    assert out.sp_pos_deg == (2**31 - 1) / 10_000.0
+    assert out.sp_vel_dps == -(2**31) / 10_000.0
+    assert out.current_a == (2**15 - 1) / 1000.0
+    assert out.duty == -(2**15) / 10_000.0
+    with pytest.raises(ValueError, match="pos_deg"):
+        encode(dataclasses.replace(huge, pos_deg=math.nan), 0)
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        Move(70_000, 1.0, 1.0, 1.0),
+        Move(1, math.nan, 1.0, 1.0),
+        Move(1, 1e9, 1.0, 1.0),
+        Stop(-1),
+        SetTelemetry(1, 70_000),
+        Stop(1, 1e300),
+    ],
+)
+def test_command_values_that_do_not_fit_raise(msg):
+    with pytest.raises(ValueError, match="cannot encode"):
+        encode(msg, 0)
+
+
+def test_encode_rejects_non_messages():
+    with pytest.raises(TypeError):
+        encode(b"hello", 0)
+
+
+# ------------------------------------------------------------------ Malformed
+
+
+def test_unknown_type_with_good_crc_is_malformed():
+    out, decoder = decode_all(frame_raw(0x42, b"\x07\x01\xff", 3))
+    assert out == [Malformed(0x42, 3, 0x0107, NackCode.UNKNOWN_TYPE)]
+    assert decoder.malformed == 1 and decoder.frames == 1 and decoder.crc_errors == 0
+
+
+def test_wrong_length_is_malformed_with_cmd_id():
+    payload = encode(Move(0x0A0B, 1.0, 2.0, 3.0), 0)[6:-2]
+    out, _ = decode_all(frame_raw(MsgType.MOVE, payload[:-1], 4))
+    assert out == [Malformed(MsgType.MOVE, 4, 0x0A0B, NackCode.BAD_LENGTH)]
+    out, _ = decode_all(frame_raw(MsgType.GET_STATUS, b"\x01", 5))
+    assert out == [Malformed(MsgType.GET_STATUS, 5, 0, NackCode.BAD_LENGTH)]
+
+
+def test_undefined_enum_value_is_malformed_out_of_range():
+    payload = struct.pack("<HB", 77, 9)  # Loop 9 does not exist
+    out, _ = decode_all(frame_raw(MsgType.GET_GAINS, payload, 0))
+    assert out == [Malformed(MsgType.GET_GAINS, 0, 77, NackCode.OUT_OF_RANGE)]
+    out, _ = decode_all(frame_raw(MsgType.SET_ENABLE, struct.pack("<HB", 78, 2), 1))
+    assert out == [Malformed(MsgType.SET_ENABLE, 1, 78, NackCode.OUT_OF_RANGE)]
+
+
+def test_frame_raw_rejects_oversize_payload():
+    with pytest.raises(ValueError, match="exceeds"):
+        frame_raw(0x01, bytes(MAX_PAYLOAD_BYTES + 1), 0)
+
+
+# ------------------------------------------------------------------ counters
+
+
+def test_counters_for_garbage_crc_error_and_gap():
+    msgs, frames = stream(6)
+    garbage = bytes(range(17))  # no 0xA5 in it
+    corrupted = bytearray(frames[2])
+    corrupted[10] ^= 0x01  # in the payload: the header check passes, the CRC fails
+    data = garbage + frames[0] + frames[1] + bytes(corrupted) + frames[3] + frames[5]
+    out, decoder = decode_all(data)
+    assert out == [msgs[0], msgs[1], msgs[3], msgs[5]]
+    assert decoder.frames == 4
+    assert decoder.crc_errors == 1
+    assert decoder.header_errors == 0
+    assert decoder.bytes_dropped == len(garbage) + len(corrupted)
+    assert decoder.resyncs == 2  # after the garbage and after the corrupted frame
+    assert decoder.seq_gaps == 2  # 1 -> 3 and 3 -> 5
+    assert decoder.frames_missed == 2
+
+
+def test_header_error_is_counted_and_only_one_byte_skipped():
+    msgs, frames = stream(1)
+    fake = b"\xa5\x5a\x10\x82\x00\x00"  # wrong header check byte
+    out, decoder = decode_all(fake + frames[0])
+    assert out == msgs
+    assert decoder.header_errors == 1
+    assert decoder.bytes_dropped == len(fake)
+
+
+def test_sequence_wraps_without_a_gap():
+    msgs, frames = stream(4, first_seq=254)
+    out, decoder = decode_all(b"".join(frames))
+    assert out == msgs
+    assert decoder.seq_gaps == 0 and decoder.last_seq == 1
+
+
+def test_split_sync_pair_across_chunks():
+    msgs, frames = stream(1)
+    decoder = Decoder()
+    assert decoder.feed(b"\x00\x00" + frames[0][:1]) == []
+    assert decoder.feed(frames[0][1:]) == msgs
+    assert decoder.bytes_dropped == 2
+
+
+# ------------------------------------------------------------------ properties
+
+PROPERTY = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@PROPERTY
+@given(st.binary(max_size=600), st.lists(st.integers(0, 600), max_size=8))
+def test_arbitrary_bytes_never_raise(data, cuts):
+    decoder = Decoder()
+    for start, stop in zip([0, *sorted(cuts)], [*sorted(cuts), len(data)], strict=True):
+        for msg in decoder.feed(data[start:stop]):
+            assert isinstance(msg, Malformed) or type(msg) in frame._BY_CLASS
+    decoder.flush()
+    assert decoder.pending_bytes == 0
+
+
+@PROPERTY
+@given(
+    st.lists(MESSAGES, min_size=1, max_size=12),
+    st.data(),
+)
+def test_output_is_the_same_however_the_stream_is_chunked(msgs, data):
+    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
+    noise = data.draw(st.binary(max_size=40))
+    where = data.draw(st.integers(0, len(raw)))
+    raw = raw[:where] + noise + raw[where:]
+    whole = Decoder()
+    expected = whole.feed(raw)
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(raw)), max_size=20)))
+    chunked = Decoder()
+    got = []
+    for start, stop in zip([0, *cuts], [*cuts, len(raw)], strict=True):
+        got += chunked.feed(raw[start:stop])
+    assert _same(got, expected)
+    assert chunked.stats() == whole.stats()
+    assert chunked.pending_bytes == whole.pending_bytes
+
+
+@PROPERTY
+@given(st.binary(max_size=200), st.lists(MESSAGES, min_size=1, max_size=6))
+def test_every_intact_frame_after_garbage_is_recovered(garbage, msgs):
+    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
+    out, _ = decode_all(garbage + raw)
+    assert _same(out[len(out) - len(msgs) :], msgs)
+
+
+@PROPERTY
+@given(st.lists(MESSAGES, min_size=2, max_size=6), st.data())
+def test_truncated_frame_does_not_swallow_the_next(msgs, data):
+    # a frame cut short claims a length that runs into the next frames: the decoder must
+    # back up one byte, not skip the claimed length
+    first = encode(msgs[0], 0)
+    cut = data.draw(st.integers(frame.HEADER_BYTES, len(first) - 1))
+    rest = b"".join(encode(m, k + 1) for k, m in enumerate(msgs[1:]))
+    out, decoder = decode_all(first[:cut] + rest)
+    assert _same(out, msgs[1:])
+
+
+@PROPERTY
+@given(
+    st.binary(max_size=100),
+    st.integers(0, MAX_PAYLOAD_BYTES),
+    u8,
+    u8,
+    MESSAGES,
+)
+def test_fake_header_cannot_hold_a_good_frame_back(garbage, length, msg_type, seq, msg):
+    head = bytes((length, msg_type, seq))
+    fake = b"\xa5\x5a" + head + bytes((crc8(head),))  # a header that passes the check
+    good = encode(msg, 0)
+    decoder = Decoder()
+    # no flush: the bytes that follow are enough to resolve the fake
+    out = decoder.feed(garbage + fake + good + bytes(MAX_FRAME_BYTES))
+    assert _same(out[-1:], [msg])
+
+
+@PROPERTY
+@given(
+    st.lists(st.integers(0, 10_000), min_size=1, max_size=30, unique=True),
+    st.data(),
+)
+def test_corrupted_frames_are_never_accepted(ticks, data):
+    msgs = [telemetry(t) for t in ticks]
+    frames = [bytearray(encode(m, k)) for k, m in enumerate(msgs)]
+    corrupted = set()
+    for index in data.draw(st.sets(st.integers(0, len(frames) - 1))):
+        frm = frames[index]
+        # a burst of at most 16 bits: CRC-16/CCITT detects every such burst
+        first_bit = data.draw(st.integers(2 * 8, len(frm) * 8 - 1))
+        span = data.draw(st.integers(1, 16))
+        pattern = data.draw(st.integers(1, (1 << span) - 1)) | 1 | (1 << (span - 1))
+        for bit in range(span):
+            if pattern >> bit & 1 and first_bit + bit < len(frm) * 8:
+                frm[(first_bit + bit) // 8] ^= 0x80 >> ((first_bit + bit) % 8)
+        corrupted.add(index)
+    out, decoder = decode_all(b"".join(bytes(f) for f in frames))
+    intact = [m for k, m in enumerate(msgs) if k not in corrupted]
+    assert out == intact
+    assert decoder.frames == len(intact)
+
+
+def _same(got: list, expected: list) -> bool:
+    """Equality that treats NaN float fields as equal (messages are compared field-wise)."""
+    if len(got) != len(expected):
+        return False
+    for a, b in zip(got, expected, strict=True):
+        if type(a) is not type(b):
+            return False
+        if a == b:
+            continue
+        for field in dataclasses.fields(a):
+            x, y = getattr(a, field.name), getattr(b, field.name)
+            if x != y and not (isinstance(x, float) and math.isnan(x) and math.isnan(y)):
+                return False
+    return True
