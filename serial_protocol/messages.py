@@ -81,10 +81,12 @@ class MsgType(IntEnum):
 
 
 class Profile(IntEnum):
-    """Velocity profile of a ``Move``."""
+    """Velocity profile of a ``Move``. ``STEP`` is no planning at all: the setpoint jumps to
+    the target (the paper's Fig. 6 run without planning)."""
 
     TRAPEZOID = 0
     SCURVE = 1
+    STEP = 2
 
 
 class Loop(IntEnum):
