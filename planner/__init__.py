@@ -1,1 +1,27 @@
-"""Motion planners from the three seeds: pure functions, immutable profiles, no I/O."""
+"""Motion planners from the three seeds: pure functions, immutable profiles, no I/O.
+
+Unit-free: any consistent units (the firmware uses axis degrees and seconds).
+
+* :func:`plan_trapezoid` - time-optimal velocity/acceleration-limited move from any start
+  velocity to any end velocity (seed 000, eqs. 1-19).
+* :func:`plan_scurve` - jerk-limited 7-segment S-curve from any (v0, a0) (seed 002).
+* :func:`plan_stop`, :func:`plan_scurve_stop` - the shortest stop.
+* :class:`OnlinePlanner` - per-tick setpoints with interrupt-and-replan (seed 000, Fig. 8).
+* :class:`Profile` - what every planner returns: ``duration``, ``at(t)``, ``phases``.
+"""
+
+from planner.online import OnlinePlanner
+from planner.profile import Profile
+from planner.scurve import plan_scurve, plan_scurve_stop, scurve_from_periods, velocity_pulse
+from planner.trapezoid import plan_stop, plan_trapezoid
+
+__all__ = [
+    "OnlinePlanner",
+    "Profile",
+    "plan_scurve",
+    "plan_scurve_stop",
+    "plan_stop",
+    "plan_trapezoid",
+    "scurve_from_periods",
+    "velocity_pulse",
+]

@@ -1,0 +1,124 @@
+"""Online interruption and replanning (seed 000, section 4 and Fig. 8 / Table 1).
+
+The firmware keeps one :class:`OnlinePlanner`, asks it for the setpoint every servo tick and
+hands it new targets (and limits) at any time. A new command replans from the *commanded*
+state at that instant (position, velocity and, for the S-curve, acceleration), so the
+setpoint has no jump in position or velocity (nor in acceleration for the S-curve); this is
+the paper's "record the current position as S_0 and the velocity as v_0 and replan".
+
+The object holds only the active profile and its start time; every call is O(number of
+phases) and allocates no arrays, so it is cheap enough for a 2 ms tick.
+"""
+
+from __future__ import annotations
+
+import math
+
+from planner.profile import Profile
+from planner.scurve import plan_scurve, plan_scurve_stop
+from planner.trapezoid import plan_stop, plan_trapezoid
+
+__all__ = ["OnlinePlanner"]
+
+_KINDS = ("trapezoid", "scurve")
+
+
+class OnlinePlanner:
+    """A stateful setpoint generator that replans on command without jumps.
+
+    Args:
+        kind: ``"trapezoid"`` (velocity and acceleration limited) or ``"scurve"`` (also jerk
+            limited; ``j_max`` then required in :meth:`command` and :meth:`stop`).
+
+    Attributes:
+        profile: the active :class:`Profile`, or None after :meth:`reset`.
+        t_start_s: the time at which ``profile`` starts (``profile.at(t_s - t_start_s)``).
+        moving: True if the last :meth:`sample` fell before the end of the active profile.
+    """
+
+    def __init__(self, kind: str = "trapezoid") -> None:
+        if kind not in _KINDS:
+            raise ValueError(f"kind = {kind!r}: must be one of {_KINDS}")
+        self.kind = kind
+        self.profile: Profile | None = None
+        self.t_start_s = 0.0
+        self.moving = False
+        self._p_rest = 0.0
+
+    def reset(self, p0: float) -> None:
+        """Forget any profile; hold still at ``p0``."""
+        if not math.isfinite(p0):
+            raise ValueError(f"p0 = {p0!r}: must be finite")
+        self.profile = None
+        self.t_start_s = 0.0
+        self.moving = False
+        self._p_rest = float(p0)
+
+    def _state(self, t_s: float) -> tuple[float, float, float]:
+        if not math.isfinite(t_s):
+            raise ValueError(f"t_s = {t_s!r}: must be finite")
+        if self.profile is None:
+            return self._p_rest, 0.0, 0.0
+        if t_s < self.t_start_s:
+            raise ValueError(
+                f"t_s = {t_s!r}: before the start of the active profile ({self.t_start_s!r})"
+            )
+        p, v, a = self.profile.at(t_s - self.t_start_s)
+        return float(p), float(v), float(a)
+
+    def _j_max(self, j_max: float | None) -> float:
+        if self.kind == "scurve" and j_max is None:
+            raise ValueError("j_max = None: an S-curve planner needs a jerk limit")
+        return float(j_max) if j_max is not None else math.inf
+
+    def command(
+        self,
+        t_s: float,
+        target: float,
+        *,
+        v_max: float,
+        a_max: float,
+        j_max: float | None = None,
+    ) -> Profile:
+        """Replan at ``t_s`` from the commanded state to ``target`` (at rest there).
+
+        If the commanded speed exceeds a lowered ``v_max`` the new profile brakes down to
+        ``v_max`` first. Returns the new active profile (which starts at ``t_s``).
+
+        Raises:
+            ValueError: bad limits or target (named, with the value), or ``t_s`` earlier
+                than the start of the active profile.
+        """
+        p, v, a = self._state(t_s)
+        if self.kind == "trapezoid":
+            profile = plan_trapezoid(p, target, v_max=v_max, a_max=a_max, v0=v)
+        else:
+            profile = plan_scurve(
+                p, target, v_max=v_max, a_max=a_max, j_max=self._j_max(j_max), v0=v, a0=a
+            )
+        self.profile = profile
+        self.t_start_s = float(t_s)
+        self.moving = profile.duration > 0.0
+        return profile
+
+    def stop(self, t_s: float, *, a_max: float, j_max: float | None = None) -> Profile:
+        """Replan at ``t_s`` to the shortest stop from the commanded state."""
+        p, v, a = self._state(t_s)
+        if self.kind == "trapezoid":
+            profile = plan_stop(p, a_max=a_max, v0=v)
+        else:
+            profile = plan_scurve_stop(p, a_max=a_max, j_max=self._j_max(j_max), v0=v, a0=a)
+        self.profile = profile
+        self.t_start_s = float(t_s)
+        self.moving = profile.duration > 0.0
+        return profile
+
+    def sample(self, t_s: float) -> tuple[float, float, float]:
+        """The setpoint ``(p, v, a)`` at ``t_s``; updates :attr:`moving`."""
+        if self.profile is None:
+            self.moving = False
+            return self._p_rest, 0.0, 0.0
+        tau = t_s - self.t_start_s
+        self.moving = tau < self.profile.duration
+        p, v, a = self.profile.at(tau)
+        return float(p), float(v), float(a)

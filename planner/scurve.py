@@ -1,0 +1,254 @@
+"""Jerk-limited 7-segment S-curve (seed 002, eqs. 2-5) from any start velocity and acceleration.
+
+Seed 002 (Zhang et al. 2013) writes the S-curve as seven phases of constant jerk
+``+J, 0, -J, 0, -J, 0, +J`` (jerk-up, constant acceleration, jerk-down, cruise, and the mirror
+image to stop). Here the same shape is planned time-optimally for given limits
+``|v| <= v_max``, ``|a| <= a_max``, ``|j| <= j_max`` from a start state ``(p0, v0, a0)`` to
+rest at ``p1``:
+
+* the move is a *velocity pulse* from ``(v0, a0)`` to a peak velocity ``vp`` with zero
+  acceleration, a cruise at ``vp`` (only if ``|vp| == v_max``), and a second pulse from
+  ``(vp, 0)`` to ``(0, 0)``. A pulse is the time-optimal acceleration-limited,
+  jerk-limited velocity change: the trapezoid of :mod:`planner.trapezoid` one order down
+  (velocity in place of position, acceleration in place of velocity, jerk in place of
+  acceleration). It has a constant-acceleration phase only if the change is large enough,
+  so the degenerate shapes (no constant acceleration, no cruise, very short moves) come
+  out by themselves; phases of zero length are dropped.
+* ``vp`` solves ``distance(vp) = p1 - p0``. With ``a0 == 0`` and ``|v0| <= v_max`` the
+  distance is monotonic on the branch that contains the optimum (``vp >= max(v0, 0)`` if the
+  target lies beyond the stopping point, ``vp <= min(v0, 0)`` otherwise), and a safeguarded
+  Newton iteration finds it to rounding. Otherwise (``a0 != 0`` or ``|v0| > v_max``) all
+  roots on ``[-v_max, v_max]`` are bracketed on a grid and the fastest is taken; this is a
+  valid profile (limits, continuity, exact end) but not proven time-optimal, and the
+  benchmark compares its duration with ruckig's.
+
+Cases, as for the trapezoid, in the frame where the start velocity is >= 0: ``"a"`` (cruise
+forward), ``"b"`` (forward, no cruise), ``"c"`` (reverse, no cruise), ``"d"`` (reverse,
+cruise); ``"classic"`` and ``"triangle"`` when starting at rest; ``"hold"`` for no motion.
+"""
+
+from __future__ import annotations
+
+import math
+
+from planner.profile import Profile, build_profile
+from planner.trapezoid import _check_finite, _check_positive, time_optimal_segments
+
+__all__ = ["plan_scurve", "plan_scurve_stop", "scurve_from_periods", "velocity_pulse"]
+
+
+def velocity_pulse(
+    v0: float, a0: float, v1: float, a_max: float, j_max: float
+) -> list[tuple[float, float]]:
+    """Fastest change of velocity from ``(v0, a0)`` to ``(v1, 0)``: ``(dt, jerk)`` segments.
+
+    ``|a| <= a_max`` (after bringing ``|a0| > a_max`` back first), ``|j| <= j_max``.
+    """
+    segments, _, _, _ = time_optimal_segments(v0, v1, a0, 0.0, a_max, j_max)
+    return segments
+
+
+def _integrate(segments: list[tuple[float, float]], v: float, a: float) -> tuple[float, float]:
+    """Distance and duration of jerk ``segments`` from velocity v and acceleration a."""
+    dist = 0.0
+    dur = 0.0
+    for dt, j in segments:
+        if dt > 0.0:
+            dist += dt * (v + dt * (0.5 * a + dt * j / 6.0))
+            v += dt * (a + 0.5 * dt * j)
+            a += dt * j
+            dur += dt
+    return dist, dur
+
+
+def _rest_pulse(va: float, vb: float, a_max: float, j_max: float) -> tuple[float, float, float]:
+    """Duration, distance and d(distance)/d(vb) of a pulse from (va, 0) to (vb, 0)."""
+    dv = abs(vb - va)
+    s = 1.0 if vb >= va else -1.0
+    if dv * j_max < a_max * a_max:
+        dur = 2.0 * math.sqrt(dv / j_max)
+        ddur = 1.0 / math.sqrt(dv * j_max) if dv > 0.0 else math.inf
+    else:
+        dur = dv / a_max + a_max / j_max
+        ddur = 1.0 / a_max
+    mean = 0.5 * (va + vb)
+    ddist = 0.5 * dur + mean * ddur * s if ddur != math.inf else math.inf
+    return dur, mean * dur, ddist
+
+
+def _rest_distance(vp: float, v0: float, a_max: float, j_max: float) -> tuple[float, float]:
+    """Distance of pulse (v0 -> vp) + pulse (vp -> 0) with a0 = 0, and its derivative."""
+    _, d1, dd1 = _rest_pulse(v0, vp, a_max, j_max)
+    _, d2, dd2 = _rest_pulse(0.0, vp, a_max, j_max)  # reversed pulse: same distance
+    return d1 + d2, dd1 + dd2
+
+
+def _solve_monotone(d: float, lo: float, hi: float, v0: float, a_max: float, j_max: float) -> float:
+    """Root of the increasing ``_rest_distance(vp) = d`` on ``[lo, hi]`` (safeguarded Newton)."""
+    x = hi
+    for _ in range(200):
+        f, df = _rest_distance(x, v0, a_max, j_max)
+        f -= d
+        if f == 0.0:
+            return x
+        if f > 0.0:
+            hi = x
+        else:
+            lo = x
+        step_ok = math.isfinite(df) and df > 0.0
+        x_new = x - f / df if step_ok else 0.5 * (lo + hi)
+        if not lo < x_new < hi:
+            x_new = 0.5 * (lo + hi)
+        if abs(x_new - x) <= 4e-16 * max(abs(x), abs(lo), abs(hi)) or hi - lo <= 0.0:
+            return x_new
+        x = x_new
+    return x
+
+
+def _pulses(
+    v0: float, a0: float, vp: float, a_max: float, j_max: float
+) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
+    up = velocity_pulse(v0, a0, vp, a_max, j_max)
+    down = velocity_pulse(vp, 0.0, 0.0, a_max, j_max)
+    return up, down
+
+
+def _total(v0: float, a0: float, vp: float, a_max: float, j_max: float) -> tuple[float, float]:
+    up, down = _pulses(v0, a0, vp, a_max, j_max)
+    d1, t1 = _integrate(up, v0, a0)
+    d2, t2 = _integrate(down, vp, 0.0)
+    return d1 + d2, t1 + t2
+
+
+def _solve_general(
+    d: float, v0: float, a0: float, v_max: float, a_max: float, j_max: float
+) -> tuple[float, float]:
+    """(vp, cruise_time) minimising the duration over all bracketed roots; any a0, v0."""
+    candidates: list[tuple[float, float, float]] = []  # (duration, vp, t_cruise)
+    for s in (1.0, -1.0):
+        dist, dur = _total(v0, a0, s * v_max, a_max, j_max)
+        t_cruise = (d - dist) / (s * v_max)
+        if t_cruise >= 0.0:
+            candidates.append((dur + t_cruise, s * v_max, t_cruise))
+    n = 64
+    grid = {-v_max + 2.0 * v_max * k / n for k in range(n + 1)}
+    v_nat = v0 + a0 * abs(a0) / (2.0 * j_max)
+    grid.update(min(max(x, -v_max), v_max) for x in (0.0, v0, v_nat))
+    xs = sorted(grid)
+    fs = [_total(v0, a0, x, a_max, j_max)[0] - d for x in xs]
+    for x_lo, x_hi, f_lo, f_hi in zip(xs[:-1], xs[1:], fs[:-1], fs[1:], strict=True):
+        if f_lo == 0.0:
+            candidates.append((_total(v0, a0, x_lo, a_max, j_max)[1], x_lo, 0.0))
+        if (f_lo < 0.0) == (f_hi < 0.0) or f_hi == 0.0:
+            continue
+        lo, hi, flo = x_lo, x_hi, f_lo
+        for _ in range(100):  # bisection: robust on the kinks between pulse shapes
+            mid = 0.5 * (lo + hi)
+            if mid in (lo, hi):
+                break
+            fm = _total(v0, a0, mid, a_max, j_max)[0] - d
+            if (fm < 0.0) == (flo < 0.0):
+                lo, flo = mid, fm
+            else:
+                hi = mid
+        x = 0.5 * (lo + hi)
+        candidates.append((_total(v0, a0, x, a_max, j_max)[1], x, 0.0))
+    if fs[-1] == 0.0:
+        candidates.append((_total(v0, a0, xs[-1], a_max, j_max)[1], xs[-1], 0.0))
+    _, vp, t_cruise = min(candidates)
+    return vp, t_cruise
+
+
+def plan_scurve(
+    p0: float,
+    p1: float,
+    *,
+    v_max: float,
+    a_max: float,
+    j_max: float,
+    v0: float = 0.0,
+    a0: float = 0.0,
+) -> Profile:
+    """Plan a jerk-limited move from ``(p0, v0, a0)`` to rest at ``p1``.
+
+    Args:
+        p0, p1: start and target position. v0, a0: start velocity and acceleration.
+        v_max, a_max, j_max: limits, each finite and > 0.
+
+    Returns:
+        An ``"scurve"`` :class:`Profile`; its ``phases`` carry the jerk of each phase.
+
+    Raises:
+        ValueError: an argument is not finite or a limit is not > 0.
+    """
+    _check_finite(p0=p0, p1=p1, v0=v0, a0=a0)
+    _check_positive(v_max=v_max, a_max=a_max, j_max=j_max)
+    p0, p1, v0, a0 = float(p0), float(p1), float(v0), float(a0)
+    v_max, a_max, j_max = float(v_max), float(a_max), float(j_max)
+    d = p1 - p0
+    if a0 == 0.0 and abs(v0) <= v_max:
+        stop_dist = _rest_pulse(v0, 0.0, a_max, j_max)[1]
+        sigma = 1.0 if d >= stop_dist else -1.0
+        cruise_dist = _rest_distance(sigma * v_max, v0, a_max, j_max)[0]
+        if sigma * (d - cruise_dist) >= 0.0:
+            vp = sigma * v_max
+            t_cruise = (d - cruise_dist) / vp
+        else:
+            if sigma > 0.0:
+                lo, hi = max(v0, 0.0), v_max
+            else:
+                lo, hi = -v_max, min(v0, 0.0)
+            vp = _solve_monotone(d, lo, hi, v0, a_max, j_max)
+            t_cruise = 0.0
+    else:
+        vp, t_cruise = _solve_general(d, v0, a0, v_max, a_max, j_max)
+    up, down = _pulses(v0, a0, vp, a_max, j_max)
+    segments = up + [(t_cruise, 0.0)] + down
+    if all(dt <= 0.0 for dt, _ in segments):
+        case = "hold"
+    else:
+        if v0 != 0.0:
+            frame = 1.0 if v0 > 0.0 else -1.0
+        else:
+            frame = 1.0 if d >= 0.0 else -1.0
+        cruise = abs(vp) == v_max and t_cruise > 0.0
+        forward = vp * frame > 0.0
+        if v0 == 0.0 and a0 == 0.0:
+            case = "classic" if cruise else "triangle"
+        elif forward:
+            case = "a" if cruise else "b"
+        else:
+            case = "d" if cruise else "c"
+    return build_profile("scurve", case, p0, v0, a0, segments, p1, 0.0)
+
+
+def plan_scurve_stop(
+    p0: float, *, a_max: float, j_max: float, v0: float = 0.0, a0: float = 0.0
+) -> Profile:
+    """The shortest jerk-limited stop from ``(p0, v0, a0)``; ends at rest wherever it stops."""
+    _check_finite(p0=p0, v0=v0, a0=a0)
+    _check_positive(a_max=a_max, j_max=j_max)
+    segments = velocity_pulse(float(v0), float(a0), 0.0, float(a_max), float(j_max))
+    dist, dur = _integrate(segments, float(v0), float(a0))
+    case = "stop" if dur > 0.0 else "hold"
+    return build_profile("scurve", case, float(p0), float(v0), float(a0), segments, p0 + dist, 0.0)
+
+
+def scurve_from_periods(
+    length: float, v: float, dt: float, *, n_jerk: int, n_const: int, p0: float = 0.0
+) -> Profile:
+    """Seed 002's parameterisation: reach ``v`` in ``n_jerk`` periods of jerk-up, ``n_const``
+    of constant acceleration and ``n_jerk`` of jerk-down (period ``dt``), and stop the same way.
+
+    Gives ``j_max = v / (T_j (T_j + T_a))`` and ``a_max = j_max T_j`` with ``T_j = n_jerk dt``,
+    ``T_a = n_const dt``, and plans ``plan_scurve(p0, p0 + length, ...)`` with them.
+    """
+    if not (isinstance(n_jerk, int) and n_jerk >= 1):
+        raise ValueError(f"n_jerk = {n_jerk!r}: must be an integer >= 1")
+    if not (isinstance(n_const, int) and n_const >= 0):
+        raise ValueError(f"n_const = {n_const!r}: must be an integer >= 0")
+    _check_positive(v=v, dt=dt)
+    t_j = n_jerk * dt
+    t_a = n_const * dt
+    j_max = v / (t_j * (t_j + t_a))
+    return plan_scurve(p0, p0 + length, v_max=v, a_max=j_max * t_j, j_max=j_max)
