@@ -1,0 +1,303 @@
+"""The emulated UART of the simulation: one direction, paced in simulated time.
+
+The simulation loop owns one ``EmulatedUart`` per direction (board TX → PC, PC → board RX).
+The sender ``write``s into a TX FIFO of ``fifo_bytes``; bytes that do not fit are dropped and
+counted in ``stats.overflow_bytes`` (never silent). Each tick the loop calls
+``advance(dt_s)``, which shifts out ``baud / 10`` bytes per simulated second (8N1: a start
+bit, 8 data bits, a stop bit), carrying the fractional byte over to the next call, applies
+the seeded fault injection and returns what reaches the far end.
+
+``telemetry_decimation`` gives the firmware the smallest telemetry decimation whose byte rate
+fits the baud rate with a margin left for replies.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+__all__ = [
+    "DEFAULT_MAX_UTILISATION",
+    "EmulatedUart",
+    "FaultEvent",
+    "FaultInjection",
+    "UartStats",
+    "bytes_per_s",
+    "link_utilisation",
+    "telemetry_decimation",
+]
+
+BITS_PER_BYTE_8N1 = 10
+#: Share of the line telemetry may use; the rest is left for ACKs, replies and fault reports.
+DEFAULT_MAX_UTILISATION = 0.75
+
+
+def bytes_per_s(baud: int) -> float:
+    """Byte rate of an 8N1 line at ``baud`` (10 bits per byte)."""
+    if not baud > 0:
+        raise ValueError(f"baud = {baud!r}: must be > 0")
+    return baud / BITS_PER_BYTE_8N1
+
+
+def link_utilisation(baud: int, frame_bytes: int, tick_hz: float, decimation: int = 1) -> float:
+    """Fraction of the line taken by one ``frame_bytes`` frame every ``decimation`` ticks."""
+    if decimation < 1:
+        raise ValueError(f"decimation = {decimation!r}: must be >= 1")
+    return frame_bytes * tick_hz / decimation / bytes_per_s(baud)
+
+
+def telemetry_decimation(
+    baud: int,
+    frame_bytes: int,
+    tick_hz: float,
+    max_utilisation: float = DEFAULT_MAX_UTILISATION,
+) -> int:
+    """Smallest decimation d >= 1 such that one ``frame_bytes`` frame every d ticks uses at
+    most ``max_utilisation`` of an 8N1 line at ``baud``.
+
+    At 500 Hz a 34-byte telemetry frame gives 1 at 460800 and 921600 baud and 2 at 115200
+    (17000 B/s wanted, 11520 B/s available).
+    """
+    if not frame_bytes > 0 or not tick_hz > 0:
+        raise ValueError(f"frame_bytes = {frame_bytes!r}, tick_hz = {tick_hz!r}: must be > 0")
+    if not 0.0 < max_utilisation <= 1.0:
+        raise ValueError(f"max_utilisation = {max_utilisation!r}: must be in (0, 1]")
+    budget_bytes_per_s = max_utilisation * bytes_per_s(baud)
+    decimation = max(1, math.ceil(frame_bytes * tick_hz / budget_bytes_per_s))
+    # ceil of a float quotient may land one too high or low on exact ratios: settle it
+    while decimation > 1 and frame_bytes * tick_hz / (decimation - 1) <= budget_bytes_per_s:
+        decimation -= 1
+    while frame_bytes * tick_hz / decimation > budget_bytes_per_s:
+        decimation += 1
+    return decimation
+
+
+@dataclass(frozen=True, slots=True)
+class FaultInjection:
+    """Seeded line faults, as probabilities per byte shifted out.
+
+    Each byte suffers at most one fault. A byte is faulty with probability
+    ``bit_flip_rate + drop_rate + insert_rate + burst_rate`` (at most 1) and the kind is
+    drawn in proportion to the rates:
+
+    - flip: one random bit of the byte is inverted;
+    - drop: the byte is lost;
+    - insert: a random byte is delivered after it;
+    - burst: this byte and the next ``burst_bytes - 1`` are XORed with random non-zero
+      bytes (a noise burst; every byte of it is changed).
+    """
+
+    bit_flip_rate: float = 0.0
+    drop_rate: float = 0.0
+    insert_rate: float = 0.0
+    burst_rate: float = 0.0
+    burst_bytes: int = 4
+
+    def __post_init__(self) -> None:
+        for name in ("bit_flip_rate", "drop_rate", "insert_rate", "burst_rate"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"{name} = {value!r}: must be a probability in [0, 1]")
+        if self.total_rate > 1.0:
+            raise ValueError(f"sum of the rates = {self.total_rate!r}: must be <= 1")
+        if self.burst_bytes < 1:
+            raise ValueError(f"burst_bytes = {self.burst_bytes!r}: must be >= 1")
+
+    @property
+    def total_rate(self) -> float:
+        """Probability that a byte is faulty."""
+        return self.bit_flip_rate + self.drop_rate + self.insert_rate + self.burst_rate
+
+
+@dataclass(slots=True)
+class UartStats:
+    """Byte counters of one direction.
+
+    ``written`` bytes accepted into the FIFO; ``overflow_bytes`` refused because the FIFO
+    was full; ``sent`` shifted out of the FIFO; ``delivered`` handed to the far end
+    (``sent - dropped + inserted``); ``flipped_bits`` single-bit flips; ``dropped`` bytes
+    lost; ``inserted`` spurious bytes; ``bursts`` noise bursts, covering ``burst_bytes``
+    bytes in all.
+    """
+
+    written: int = 0
+    overflow_bytes: int = 0
+    overflow_events: int = 0
+    sent: int = 0
+    delivered: int = 0
+    flipped_bits: int = 0
+    dropped: int = 0
+    inserted: int = 0
+    bursts: int = 0
+    burst_bytes: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class FaultEvent:
+    """One injected fault: ``index`` is the position of the byte in the sent stream."""
+
+    index: int
+    kind: str  # "flip" | "drop" | "insert" | "burst"
+
+
+class EmulatedUart:
+    """One direction of an 8N1 serial line with a TX FIFO, paced in simulated time.
+
+    ``baud``: bits per second; ``fifo_bytes``: TX FIFO size (a ring buffer in the firmware);
+    ``faults``: line faults or None for a clean line; ``seed``: seeds the fault draws;
+    ``record_faults``: keep a list of ``FaultEvent`` in ``fault_log`` (tests).
+    """
+
+    __slots__ = (
+        "baud",
+        "fifo_bytes",
+        "faults",
+        "stats",
+        "fault_log",
+        "_bytes_per_s",
+        "_fifo",
+        "_credit",
+        "_rng",
+        "_countdown",
+        "_burst_left",
+        "_record",
+        "_cumulative",
+    )
+
+    def __init__(
+        self,
+        baud: int,
+        fifo_bytes: int = 256,
+        faults: FaultInjection | None = None,
+        seed: int = 0,
+        record_faults: bool = False,
+    ) -> None:
+        if not isinstance(baud, int) or baud <= 0:
+            raise ValueError(f"baud = {baud!r}: must be a positive integer")
+        if not isinstance(fifo_bytes, int) or fifo_bytes < 1:
+            raise ValueError(f"fifo_bytes = {fifo_bytes!r}: must be a positive integer")
+        self.baud = baud
+        self.fifo_bytes = fifo_bytes
+        self.faults = faults if faults is not None and faults.total_rate > 0.0 else None
+        self.stats = UartStats()
+        self.fault_log: list[FaultEvent] = []
+        self._bytes_per_s = bytes_per_s(baud)
+        self._fifo = bytearray()
+        self._credit = 0.0
+        self._rng = random.Random(seed)
+        self._burst_left = 0
+        self._record = record_faults
+        if self.faults is not None:
+            f = self.faults
+            rates = (f.bit_flip_rate, f.drop_rate, f.insert_rate, f.burst_rate)
+            total = f.total_rate
+            self._cumulative = tuple(sum(rates[: k + 1]) / total for k in range(4))
+            self._countdown = self._draw_gap()
+        else:
+            self._cumulative = ()
+            self._countdown = 0
+
+    @property
+    def free(self) -> int:
+        """Free FIFO space in bytes."""
+        return self.fifo_bytes - len(self._fifo)
+
+    @property
+    def pending(self) -> int:
+        """Bytes waiting in the FIFO."""
+        return len(self._fifo)
+
+    def write(self, data: bytes) -> int:
+        """Queue ``data``; return how many bytes were accepted (the rest is counted lost)."""
+        fifo = self._fifo
+        space = self.fifo_bytes - len(fifo)
+        n = len(data)
+        if n <= space:
+            fifo += data
+            self.stats.written += n
+            return n
+        fifo += data[:space]
+        self.stats.written += space
+        self.stats.overflow_bytes += n - space
+        self.stats.overflow_events += 1
+        return space
+
+    def advance(self, dt_s: float) -> bytes:
+        """Shift out the bytes the line carries in ``dt_s`` simulated seconds and return
+        what reaches the far end (after fault injection)."""
+        fifo = self._fifo
+        # snapped to 1e-9 byte so that float error cannot accumulate over millions of ticks
+        # (23.04 bytes per 2 ms at 115200 baud must give exactly 23040 bytes per second)
+        credit = round(self._credit + dt_s * self._bytes_per_s, 9)
+        n = int(credit)
+        if n >= len(fifo):
+            # the line goes idle: the next byte starts when it is written, no banked credit
+            n = len(fifo)
+            self._credit = 0.0
+        else:
+            self._credit = credit - n
+        if n == 0:
+            return b""
+        chunk = bytes(fifo[:n])
+        del fifo[:n]
+        stats = self.stats
+        start = stats.sent
+        stats.sent = start + n
+        if self.faults is not None and (self._burst_left or self._countdown < n):
+            chunk = self._inject(chunk, start)
+        elif self.faults is not None:
+            self._countdown -= n
+        stats.delivered += len(chunk)
+        return chunk
+
+    # ------------------------------------------------------------------ faults
+
+    def _draw_gap(self) -> int:
+        """Number of clean bytes before the next faulty one (geometric)."""
+        p = self.faults.total_rate  # type: ignore[union-attr]
+        if p >= 1.0:
+            return 0
+        u = self._rng.random()
+        return int(math.log1p(-u) / math.log1p(-p))
+
+    def _inject(self, chunk: bytes, start: int) -> bytes:
+        rng = self._rng
+        stats = self.stats
+        out = bytearray()
+        for offset, byte in enumerate(chunk):
+            index = start + offset
+            if self._burst_left:
+                # inside a burst: the byte is hit, other faults wait for the burst to end
+                out.append(byte ^ rng.randrange(1, 256))
+                self._burst_left -= 1
+                stats.burst_bytes += 1
+                continue
+            if self._countdown:
+                self._countdown -= 1
+                out.append(byte)
+                continue
+            self._countdown = self._draw_gap()
+            u = rng.random()
+            cumulative = self._cumulative
+            if u < cumulative[0]:
+                out.append(byte ^ (1 << rng.randrange(8)))
+                stats.flipped_bits += 1
+                kind = "flip"
+            elif u < cumulative[1]:
+                stats.dropped += 1
+                kind = "drop"
+            elif u < cumulative[2]:
+                out.append(byte)
+                out.append(rng.randrange(256))
+                stats.inserted += 1
+                kind = "insert"
+            else:
+                out.append(byte ^ rng.randrange(1, 256))
+                stats.bursts += 1
+                stats.burst_bytes += 1
+                self._burst_left = self.faults.burst_bytes - 1  # type: ignore[union-attr]
+                kind = "burst"
+            if self._record:
+                self.fault_log.append(FaultEvent(index, kind))
+        return bytes(out)
