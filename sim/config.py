@@ -1,0 +1,428 @@
+"""TOML bench and experiment files -> frozen dataclasses (the only place raw dicts live).
+
+The loader is generic over ``sim.params.TABLES`` and ``firmware_model.params.TABLES`` (TOML
+table path -> dataclass). Each dataclass validates its own fields and raises
+``ValueError("key = value: reason")``; every problem here comes out as a ``ConfigError``
+naming the file, the table, the key and the value.
+
+A bench file holds the tables. An experiment file names its bench (``bench = "x.toml"``,
+relative to the experiment file, else a built-in config), may override any bench table key
+by key, and lists timed ``[[command]]`` entries (see README, "Config format").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import typing
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import bench_configs
+from firmware_model import params as fw_params
+from serial_protocol import messages as msg
+from serial_protocol.exceptions import ConfigError
+from sim import params as sim_params
+
+__all__ = [
+    "BenchConfig",
+    "COMMAND_FIELDS",
+    "Experiment",
+    "ScriptedCommand",
+    "build_tables",
+    "load_bench",
+    "load_experiment",
+]
+
+TABLES: dict[str, type] = {**sim_params.TABLES, **fw_params.TABLES}
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """A whole bench: the plant, the firmware, the UART and the loop settings."""
+
+    plant: sim_params.PlantParams = field(default_factory=sim_params.PlantParams)
+    firmware: fw_params.FirmwareParams = field(default_factory=fw_params.FirmwareParams)
+    uart: sim_params.UartParams = field(default_factory=sim_params.UartParams)
+    loop: sim_params.LoopParams = field(default_factory=sim_params.LoopParams)
+    path: Path | None = None
+
+    @property
+    def dt_s(self) -> float:
+        """Servo tick (2 ms at 500 Hz)."""
+        return self.firmware.servo.dt_s
+
+
+# Scripted command type -> {TOML key: (required?, kind)}; kinds are checked in _command.
+COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
+    "hello": {},
+    "move": {
+        "target_mdeg": (False, "float"),
+        "target_deg": (False, "float"),
+        "v_max_dps": (True, "float"),
+        "a_max_dps2": (True, "float"),
+        "j_max_dps3": (False, "float"),
+        "profile": (False, "profile"),
+    },
+    "stop": {"a_max_dps2": (False, "float")},
+    "set_gains": {
+        "loop": (True, "loop"),
+        "kp": (True, "float"),
+        "ki": (True, "float"),
+        "kd": (False, "float"),
+    },
+    "get_gains": {"loop": (True, "loop")},
+    "set_limits": {
+        "v_max_dps": (True, "float"),
+        "a_max_dps2": (True, "float"),
+        "current_limit_a": (True, "float"),
+        "following_error_deg": (True, "float"),
+    },
+    "get_limits": {},
+    "get_status": {},
+    "clear_fault": {},
+    "set_enable": {"enable": (True, "bool")},
+    "set_telemetry": {"decimation": (True, "int")},
+    # Bytes sent as they are (hex string): for protocol fault-injection experiments.
+    "raw": {"hex": (True, "hex")},
+}
+
+
+@dataclass(frozen=True)
+class ScriptedCommand:
+    """One timed command of an experiment, validated; ``message(cmd_id)`` builds it."""
+
+    t_s: float
+    type: str
+    fields: tuple[tuple[str, Any], ...] = ()
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return dict(self.fields).get(key, default)
+
+    def message(self, cmd_id: int) -> msg.Message | bytes:
+        """The wire message (or raw bytes for ``type = "raw"``) with ``cmd_id``."""
+        f = dict(self.fields)
+        if self.type == "raw":
+            return bytes.fromhex(f["hex"])
+        if self.type == "hello":
+            return msg.Hello()
+        if self.type == "move":
+            target = f["target_deg"] if "target_deg" in f else f["target_mdeg"] / 1000.0
+            return msg.Move(
+                cmd_id=cmd_id,
+                target_deg=target,
+                v_max_dps=f["v_max_dps"],
+                a_max_dps2=f["a_max_dps2"],
+                j_max_dps3=f.get("j_max_dps3", 0.0),
+                profile=f.get("profile", msg.Profile.TRAPEZOID),
+            )
+        if self.type == "stop":
+            return msg.Stop(cmd_id=cmd_id, a_max_dps2=f.get("a_max_dps2", 0.0))
+        if self.type == "set_gains":
+            return msg.SetGains(cmd_id, f["loop"], f["kp"], f["ki"], f.get("kd", 0.0))
+        if self.type == "get_gains":
+            return msg.GetGains(cmd_id, f["loop"])
+        if self.type == "set_limits":
+            return msg.SetLimits(
+                cmd_id,
+                f["v_max_dps"],
+                f["a_max_dps2"],
+                f["current_limit_a"],
+                f["following_error_deg"],
+            )
+        if self.type == "get_limits":
+            return msg.GetLimits(cmd_id)
+        if self.type == "get_status":
+            return msg.GetStatus(cmd_id)
+        if self.type == "clear_fault":
+            return msg.ClearFault(cmd_id)
+        if self.type == "set_enable":
+            return msg.SetEnable(cmd_id, f["enable"])
+        return msg.SetTelemetry(cmd_id, f["decimation"])
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """A bench, a duration and the timed commands the simulated PC sends."""
+
+    bench: BenchConfig
+    duration_s: float
+    commands: tuple[ScriptedCommand, ...] = ()
+    path: Path | None = None
+    title: str = ""
+
+
+# ------------------------------------------------------------------------ loading
+
+
+def _where(file: Path | str | None, table: str) -> str:
+    return f"{file if file is not None else '<config>'}: [{table}]"
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _lookup(data: Mapping[str, Any], dotted: str) -> Mapping[str, Any] | None:
+    node: Any = data
+    for part in dotted.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def _field_types(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def _coerce(value: Any, hint: Any) -> Any:
+    """TOML value -> field value: ints where a float is declared become floats, lists
+    become arrays; anything else goes to the dataclass's own checks unchanged."""
+    if hint is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, list):
+        return np.asarray(value, dtype=float)
+    return value
+
+
+def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
+    hints = _field_types(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    for key, value in values.items():
+        if key not in known:
+            raise ConfigError(
+                f"{_where(file, table)} {key} = {value!r}: unknown key "
+                f"(known: {', '.join(sorted(known))})"
+            )
+    kwargs = {k: _coerce(v, hints.get(k)) for k, v in values.items()}
+    try:
+        return cls(**kwargs)
+    except (ValueError, TypeError) as exc:
+        text = str(exc)
+        key = text.split(" = ", 1)[0] if " = " in text else "?"
+        raw = values.get(key, "?")
+        raise ConfigError(f"{_where(file, table)} {key} = {raw!r}: {text}") from None
+
+
+def _collect_table_paths(data: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """Every table path in ``data`` whose values are not all sub-tables."""
+    paths = []
+    for key, value in data.items():
+        if isinstance(value, Mapping):
+            path = prefix + key
+            if any(not isinstance(v, Mapping) for v in value.values()) or not value:
+                paths.append(path)
+            paths.extend(_collect_table_paths(value, path + "."))
+    return paths
+
+
+def build_tables(data: Mapping[str, Any], file: Any = None) -> dict[str, Any]:
+    """``{table path: dataclass}`` for every known table (defaults where absent)."""
+    for path in _collect_table_paths(data):
+        if path not in TABLES:
+            raise ConfigError(
+                f"{_where(file, path)}: unknown table (known: {', '.join(sorted(TABLES))})"
+            )
+    tables = {}
+    for path, cls in TABLES.items():
+        values = _lookup(data, path) or {}
+        plain = {k: v for k, v in values.items() if not isinstance(v, Mapping)}
+        tables[path] = _build(cls, plain, file, path)
+    return tables
+
+
+def bench_from_tables(tables: Mapping[str, Any], file: Any = None) -> BenchConfig:
+    plant_fields = {f.name for f in dataclasses.fields(sim_params.PlantParams)}
+    plant = sim_params.PlantParams(**{k: v for k, v in tables.items() if k in plant_fields})
+    try:
+        firmware = fw_params.FirmwareParams.from_tables(dict(tables))
+    except ValueError as exc:
+        text = str(exc)
+        key = text.split(" = ", 1)[0]
+        table = next(
+            (p for p, cls in fw_params.TABLES.items() if key in _field_types(cls)), "firmware"
+        )
+        raise ConfigError(f"{_where(file, table)} {text}") from None
+    bench = BenchConfig(
+        plant=plant,
+        firmware=firmware,
+        uart=tables["uart"],
+        loop=tables["loop"],
+        path=Path(file) if file is not None else None,
+    )
+    _check_consistency(bench, file)
+    return bench
+
+
+def _check_consistency(bench: BenchConfig, file: Any) -> None:
+    """The firmware's nominal numbers must describe the bench it runs on."""
+    cur = bench.firmware.current
+    pairs = [
+        ("controller.current", "pwm_arr", cur.pwm_arr, bench.plant.bridge.arr),
+        ("controller.current", "supply_v", cur.supply_v, bench.plant.supply.voltage_v),
+        ("controller.current", "adc_bits", cur.adc_bits, bench.plant.current_sense.adc_bits),
+    ]
+    for table, key, fw_value, plant_value in pairs:
+        if not np.all(np.asarray(fw_value) == np.asarray(plant_value)):
+            raise ConfigError(
+                f"{_where(file, table)} {key} = {fw_value!r}: the bench has {plant_value!r} "
+                "(firmware and plant must agree)"
+            )
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def load_bench(path: str | Path, overrides: Mapping[str, Any] | None = None) -> BenchConfig:
+    """Load a bench TOML file; ``overrides`` is a nested dict merged over it first."""
+    file = Path(path)
+    data = _read_toml(file)
+    if overrides:
+        data = _merge(data, overrides)
+    return bench_from_tables(build_tables(data, file), file)
+
+
+def _resolve_bench(name: Any, file: Path) -> Path:
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{file}: [top] bench = {name!r}: must name a bench TOML file")
+    beside = (file.parent / name).resolve()
+    if beside.is_file():
+        return beside
+    try:
+        return bench_configs.path(name)
+    except FileNotFoundError:
+        raise ConfigError(f"{file}: [top] bench = {name!r}: no such file") from None
+
+
+def _kind(value: Any, kind: str) -> Any:
+    """Check one command field; return the value to use or raise ValueError(reason)."""
+    if kind == "float":
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ValueError("must be a number")
+        if not math.isfinite(value):
+            raise ValueError("must be finite (send NaN with type = 'raw' to test NACKs)")
+        return float(value)
+    if kind == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError("must be an integer")
+        return value
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ValueError("must be true or false")
+        return value
+    if kind == "profile":
+        names = {p.name.lower(): p for p in msg.Profile}
+        if value not in names:
+            raise ValueError(f"must be one of {sorted(names)}")
+        return names[value]
+    if kind == "loop":
+        names = {p.name.lower(): p for p in msg.Loop}
+        if value not in names:
+            raise ValueError(f"must be one of {sorted(names)}")
+        return names[value]
+    # hex
+    if not isinstance(value, str):
+        raise ValueError("must be a hex string")
+    try:
+        bytes.fromhex(value)
+    except ValueError:
+        raise ValueError("must be a hex string such as 'a55a00'") from None
+    return value
+
+
+def _command(entry: Any, index: int, file: Path, duration_s: float) -> ScriptedCommand:
+    table = f"command #{index + 1}"
+    where = _where(file, table)
+    if not isinstance(entry, Mapping):
+        raise ConfigError(f"{where}: must be a table")
+    ctype = entry.get("type")
+    if ctype not in COMMAND_FIELDS:
+        raise ConfigError(
+            f"{where} type = {ctype!r}: must be one of {', '.join(sorted(COMMAND_FIELDS))}"
+        )
+    t_s = entry.get("t_s")
+    if isinstance(t_s, bool) or not isinstance(t_s, int | float) or not math.isfinite(t_s):
+        raise ConfigError(f"{where} t_s = {t_s!r}: must be a finite number of seconds")
+    if not 0.0 <= t_s < duration_s:
+        raise ConfigError(f"{where} t_s = {t_s!r}: must be in [0, duration_s = {duration_s})")
+    spec = COMMAND_FIELDS[ctype]
+    values = []
+    for key, value in entry.items():
+        if key in ("type", "t_s"):
+            continue
+        if key not in spec:
+            raise ConfigError(
+                f"{where} {key} = {value!r}: not a field of a {ctype!r} command "
+                f"(fields: {', '.join(sorted(spec)) or 'none'})"
+            )
+        try:
+            values.append((key, _kind(value, spec[key][1])))
+        except ValueError as exc:
+            raise ConfigError(f"{where} {key} = {value!r}: {exc}") from None
+    for key, (required, _) in spec.items():
+        if required and key not in entry:
+            raise ConfigError(f"{where} {key} = <missing>: required by a {ctype!r} command")
+    if ctype == "move" and ("target_mdeg" in entry) == ("target_deg" in entry):
+        raise ConfigError(
+            f"{where} target_mdeg = {entry.get('target_mdeg')!r}: give exactly "
+            "one of target_mdeg and target_deg"
+        )
+    return ScriptedCommand(float(t_s), ctype, tuple(values))
+
+
+_EXPERIMENT_KEYS = {"bench", "duration_s", "command", "title"}
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Load an experiment file: its bench (with overrides), duration and commands."""
+    file = Path(path)
+    data = _read_toml(file)
+    bench_file = _resolve_bench(data.get("bench"), file)
+    duration = data.get("duration_s")
+    if (
+        isinstance(duration, bool)
+        or not isinstance(duration, int | float)
+        or not math.isfinite(duration)
+        or not 0 < duration <= 86_400
+    ):
+        raise ConfigError(f"{file}: [top] duration_s = {duration!r}: must be in (0, 86400] s")
+    title = data.get("title", "")
+    if not isinstance(title, str):
+        raise ConfigError(f"{file}: [top] title = {title!r}: must be a string")
+    for key, value in data.items():
+        if key not in _EXPERIMENT_KEYS and not isinstance(value, Mapping):
+            raise ConfigError(f"{file}: [top] {key} = {value!r}: unknown key")
+    overrides = {k: v for k, v in data.items() if isinstance(v, Mapping)}
+    base = _read_toml(bench_file)
+    # Errors in the bench itself name the bench file; errors the overrides bring in name
+    # the experiment file.
+    bench = bench_from_tables(build_tables(base, bench_file), bench_file)
+    if overrides:
+        bench = bench_from_tables(build_tables(_merge(base, overrides), file), bench_file)
+    entries = data.get("command", [])
+    if not isinstance(entries, list):
+        raise ConfigError(f"{file}: [top] command = {entries!r}: use [[command]] tables")
+    commands = tuple(_command(e, k, file, float(duration)) for k, e in enumerate(entries))
+    commands = tuple(sorted(commands, key=lambda c: c.t_s))
+    return Experiment(
+        bench=bench, duration_s=float(duration), commands=commands, path=file, title=title
+    )

@@ -1,0 +1,49 @@
+"""The brushed DC motor: armature circuit and rotor, with viscous and Coulomb friction.
+
+    L di/dt = v - R i - Ke w            (v: bridge voltage, R includes the bridge path)
+    J dw/dt = Kt i - b w - tau_c(w) - tau_load
+
+Coulomb friction is regularised as a saturated linear law, ``tau_c = Tc * clip(w / w_band,
+-1, 1)``: exact Coulomb outside the band, a steep viscous law inside it. That keeps the model
+piecewise linear (so the plant is discretised exactly per mode) and continuous (so
+``solve_ivp`` has a well-posed oracle). See docs/model.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sim.params import MotorParams, PlantParams
+
+__all__ = ["friction_torque_nm", "no_load_speed_rad_s", "steady_speed_rad_s"]
+
+
+def friction_torque_nm(vel_rad_s: Any, coulomb_nm: Any, band_rad_s: Any, viscous: Any) -> Any:
+    """Friction torque opposing motion (N*m): saturated Coulomb plus viscous. Vectorised."""
+    return coulomb_nm * np.clip(vel_rad_s / band_rad_s, -1.0, 1.0) + viscous * vel_rad_s
+
+
+def no_load_speed_rad_s(motor: MotorParams, voltage_v: float, r_path_ohm: float = 0.0) -> float:
+    """Speed of the bare motor (no gearbox) at ``voltage_v``, with its own friction (rad/s)."""
+    r = motor.r_ohm + r_path_ohm
+    return (motor.kt_nm_a * voltage_v / r - motor.coulomb_nm) / (
+        motor.kt_nm_a * motor.ke_v_s_rad / r + motor.viscous_nm_s_rad
+    )
+
+
+def steady_speed_rad_s(params: PlantParams, duty: float) -> float:
+    """Steady motor speed of the whole drive train at a constant positive duty (rad/s).
+
+    Belt in contact, platter friction reflected through the gearbox with its efficiency
+    (motor driving), both friction laws saturated. Used by the analytic tests and docs.
+    """
+    m, p = params.motor, params.platter
+    n = params.total_ratio
+    eta = params.gearbox.efficiency
+    r = m.r_ohm + params.bridge.r_on_path_ohm
+    v = duty * params.supply.voltage_v
+    load0 = m.coulomb_nm + p.coulomb_nm / (n * eta)
+    slope = m.kt_nm_a * m.ke_v_s_rad / r + m.viscous_nm_s_rad + p.viscous_nm_s_rad / (n * n * eta)
+    return (m.kt_nm_a * v / r - load0) / slope

@@ -1,0 +1,322 @@
+"""Plant parameters: one frozen dataclass per part of the bench, one TOML table each.
+
+Every dataclass checks its own fields in ``__post_init__`` and raises
+``ValueError("key = value: reason")``; ``sim.config`` turns that into a ``ConfigError`` that
+names the file and the table. Where each default comes from (seed 000, a datasheet, or
+"assumed" with a reason) is listed in ``docs/model.md`` and in ``bench_configs/paper_bench.toml``.
+
+A float field may also hold a numpy array of shape ``(N,)`` (one value per batch member), as
+``sim.loop.Simulation(overrides=...)`` builds for parameter studies; the checks hold for every
+element. ``PlantParams.member(k)`` picks member ``k`` back out as plain floats.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "BeltParams",
+    "BridgeParams",
+    "CurrentSenseParams",
+    "EncoderParams",
+    "GearboxParams",
+    "LoopParams",
+    "MotorParams",
+    "PlantParams",
+    "PlatterParams",
+    "SupplyParams",
+    "TABLES",
+    "UartParams",
+]
+
+
+def _check(obj: Any, name: str, ok: bool, reason: str) -> None:
+    if not ok:
+        raise ValueError(f"{name} = {getattr(obj, name)!r}: {reason}")
+
+
+def _finite(v: Any) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(v, dtype=float))))
+
+
+def _positive(obj: Any, *names: str) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        _check(obj, name, _finite(v) and bool(np.all(np.asarray(v) > 0)), "must be finite and > 0")
+
+
+def _non_negative(obj: Any, *names: str) -> None:
+    for name in names:
+        v = getattr(obj, name)
+        _check(
+            obj, name, _finite(v) and bool(np.all(np.asarray(v) >= 0)), "must be finite and >= 0"
+        )
+
+
+@dataclass(frozen=True)
+class SupplyParams:
+    """The 24 V switching supply (seed 000: 220 V -> 24 V), taken as stiff."""
+
+    voltage_v: float = 24.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "voltage_v")
+        # The BTN7971B locks out above 27.8 V (datasheet V_OV(OFF) min).
+        _check(
+            self,
+            "voltage_v",
+            bool(np.all(np.asarray(self.voltage_v) < 27.8)),
+            "above the BTN7971B over-voltage lock-out (27.8 V)",
+        )
+
+
+@dataclass(frozen=True)
+class BridgeParams:
+    """Two BTN7971B half-bridges forming an H-bridge, PWM from STM32F103 TIM1.
+
+    The averaged bridge applies ``duty * voltage`` (duty quantised to ``1/arr`` steps,
+    ``arr = timer_clock_hz / pwm_hz`` for edge-aligned PWM). ``current_limit_a`` is the
+    chip's own switched-mode current limitation (datasheet I_CL, not the firmware's 5 A).
+    """
+
+    r_on_path_ohm: float = 0.016
+    timer_clock_hz: float = 72e6
+    pwm_hz: float = 20e3
+    current_limit_a: float = 70.0
+    diode_drop_v: float = 0.8
+
+    def __post_init__(self) -> None:
+        _non_negative(self, "r_on_path_ohm", "diode_drop_v")
+        _positive(self, "timer_clock_hz", "pwm_hz", "current_limit_a")
+        _check(
+            self,
+            "pwm_hz",
+            bool(np.all(np.asarray(self.timer_clock_hz) / self.pwm_hz >= 2)),
+            "leaves fewer than 2 timer steps per PWM period",
+        )
+
+    @property
+    def arr(self) -> Any:
+        """Timer steps per PWM period (3600 at 72 MHz / 20 kHz)."""
+        arr = np.round(np.asarray(self.timer_clock_hz, dtype=float) / self.pwm_hz)
+        return float(arr) if arr.ndim == 0 else arr
+
+
+@dataclass(frozen=True)
+class CurrentSenseParams:
+    """BTN7971B IS pin -> sense resistor -> STM32 12-bit ADC (high-side current only)."""
+
+    k_ilis: float = 8500.0
+    r_is_ohm: float = 1000.0
+    adc_vref_v: float = 3.3
+    adc_bits: int = 12
+    noise_rms_lsb: float = 0.0
+
+    def __post_init__(self) -> None:
+        _positive(self, "k_ilis", "r_is_ohm", "adc_vref_v")
+        _non_negative(self, "noise_rms_lsb")
+        _check(
+            self,
+            "adc_bits",
+            isinstance(self.adc_bits, int) and 6 <= self.adc_bits <= 16,
+            "must be an integer in [6, 16]",
+        )
+
+    @property
+    def a_per_lsb(self) -> Any:
+        """Load current per ADC count (A)."""
+        return self.adc_vref_v / (1 << self.adc_bits) * self.k_ilis / self.r_is_ohm
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """Brushed DC motor (a 24 V 775-class motor, assumed; see docs/model.md)."""
+
+    r_ohm: float = 1.2
+    l_h: float = 0.6e-3
+    kt_nm_a: float = 0.0145
+    ke_v_s_rad: float = 0.0145
+    j_kgm2: float = 1.2e-5
+    viscous_nm_s_rad: float = 2e-6
+    coulomb_nm: float = 0.004
+    coulomb_band_rad_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        _positive(self, "r_ohm", "l_h", "kt_nm_a", "ke_v_s_rad", "j_kgm2", "coulomb_band_rad_s")
+        _non_negative(self, "viscous_nm_s_rad", "coulomb_nm")
+
+
+@dataclass(frozen=True)
+class GearboxParams:
+    """Planetary gearbox between motor and axis (the axis is its output shaft)."""
+
+    ratio: float = 80.0
+    efficiency: float = 0.8
+    backlash_deg: float = 0.5
+
+    def __post_init__(self) -> None:
+        _positive(self, "ratio")
+        _non_negative(self, "backlash_deg")
+        e = np.asarray(self.efficiency)
+        _check(
+            self, "efficiency", _finite(e) and bool(np.all((e > 0) & (e <= 1))), "must be in (0, 1]"
+        )
+
+
+@dataclass(frozen=True)
+class BeltParams:
+    """17 -> 85 tooth timing belt; stiffness and damping referred to the platter."""
+
+    small_teeth: int = 17
+    large_teeth: int = 85
+    stiffness_nm_rad: float = 2500.0
+    damping_nm_s_rad: float = 2.0
+
+    def __post_init__(self) -> None:
+        for name in ("small_teeth", "large_teeth"):
+            v = getattr(self, name)
+            _check(self, name, isinstance(v, int) and v >= 8, "must be an integer >= 8")
+        _positive(self, "stiffness_nm_rad")
+        _non_negative(self, "damping_nm_s_rad")
+
+    @property
+    def ratio(self) -> float:
+        """Axis turns per platter turn (5.0)."""
+        return self.large_teeth / self.small_teeth
+
+
+@dataclass(frozen=True)
+class PlatterParams:
+    """Platter with the 85T pulley on its slewing bearing (values at the platter)."""
+
+    j_kgm2: float = 0.08
+    coulomb_nm: float = 0.3
+    viscous_nm_s_rad: float = 0.05
+    coulomb_band_rad_s: float = 1e-3
+
+    def __post_init__(self) -> None:
+        _positive(self, "j_kgm2", "coulomb_band_rad_s")
+        _non_negative(self, "coulomb_nm", "viscous_nm_s_rad")
+
+
+@dataclass(frozen=True)
+class EncoderParams:
+    """AS5048 14-bit magnetic encoder on the motor tail."""
+
+    bits: int = 14
+    latency_s: float = 100e-6
+    noise_rms_lsb: float = 0.0
+    offset_counts: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            "bits",
+            isinstance(self.bits, int) and 8 <= self.bits <= 20,
+            "must be an integer in [8, 20]",
+        )
+        _non_negative(self, "latency_s", "noise_rms_lsb", "offset_counts")
+        _check(
+            self, "latency_s", bool(np.all(np.asarray(self.latency_s) < 0.01)), "must be < 0.01 s"
+        )
+
+    @property
+    def counts_per_rev(self) -> int:
+        return 1 << self.bits
+
+
+@dataclass(frozen=True)
+class UartParams:
+    """The board's UART buffers (the baud rate is the firmware's ``[telemetry] baud``)."""
+
+    fifo_bytes: int = 256
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            "fifo_bytes",
+            isinstance(self.fifo_bytes, int) and self.fifo_bytes >= 16,
+            "must be an integer >= 16",
+        )
+
+
+@dataclass(frozen=True)
+class LoopParams:
+    """How the simulation loop steps the plant.
+
+    ``event_levels``: how many times a step in which the plant's piecewise-linear mode changes
+    (friction band, backlash contact, power-flow direction, current limitation) is halved to
+    locate the switch; 20 halvings of 2 ms locate it within 2 ns.
+    """
+
+    event_levels: int = 20
+
+    def __post_init__(self) -> None:
+        _check(
+            self,
+            "event_levels",
+            isinstance(self.event_levels, int) and 0 <= self.event_levels <= 40,
+            "must be an integer in [0, 40]",
+        )
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Everything the physical model needs, one field per TOML table."""
+
+    supply: SupplyParams = field(default_factory=SupplyParams)
+    bridge: BridgeParams = field(default_factory=BridgeParams)
+    current_sense: CurrentSenseParams = field(default_factory=CurrentSenseParams)
+    motor: MotorParams = field(default_factory=MotorParams)
+    gearbox: GearboxParams = field(default_factory=GearboxParams)
+    belt: BeltParams = field(default_factory=BeltParams)
+    platter: PlatterParams = field(default_factory=PlatterParams)
+    encoder: EncoderParams = field(default_factory=EncoderParams)
+
+    @property
+    def total_ratio(self) -> float:
+        """Motor turns per platter turn (400)."""
+        return self.gearbox.ratio * self.belt.ratio
+
+    def batch_size(self) -> int | None:
+        """N if any field holds an ``(N,)`` array, else None."""
+        n = None
+        for part in (getattr(self, f.name) for f in fields(self)):
+            for f in fields(part):
+                v = getattr(part, f.name)
+                if isinstance(v, np.ndarray) and v.ndim == 1:
+                    if n is not None and v.shape[0] != n:
+                        raise ValueError(f"{f.name} = array of {v.shape[0]}: batch is {n}")
+                    n = v.shape[0]
+        return n
+
+    def member(self, k: int) -> PlantParams:
+        """The parameters of batch member ``k`` with every array replaced by a float."""
+        parts = {}
+        for f in fields(self):
+            part = getattr(self, f.name)
+            changes = {
+                g.name: float(getattr(part, g.name)[k])
+                for g in fields(part)
+                if isinstance(getattr(part, g.name), np.ndarray)
+            }
+            parts[f.name] = replace(part, **changes) if changes else part
+        return replace(self, **parts)
+
+
+# TOML table path -> dataclass. ``sim.config`` is generic over this and firmware_model's TABLES.
+TABLES: dict[str, type] = {
+    "supply": SupplyParams,
+    "bridge": BridgeParams,
+    "current_sense": CurrentSenseParams,
+    "motor": MotorParams,
+    "gearbox": GearboxParams,
+    "belt": BeltParams,
+    "platter": PlatterParams,
+    "encoder": EncoderParams,
+    "uart": UartParams,
+    "loop": LoopParams,
+}

@@ -1,0 +1,417 @@
+"""The plant as a piecewise-affine state-space model, discretised exactly per mode.
+
+State ``x`` (shape ``(5,)`` or ``(N, 5)``), input ``u = (duty, enable)``::
+
+    x[0] current_a           armature current (A)
+    x[1] motor_pos_rad       motor angle (rad, multi-turn)
+    x[2] motor_vel_rad_s     motor speed (rad/s)
+    x[3] twist_rad           theta_m / 400 - theta_platter (platter rad): backlash + belt
+    x[4] platter_vel_rad_s   platter speed (rad/s)
+
+Every nonlinearity of the model (saturated Coulomb friction of motor and platter, backlash
+contact, power-flow direction through the gearbox, the bridge's current limitation and its
+diodes when disabled) is piecewise linear, so in each *mode* the plant is
+``dx/dt = A x + B duty + e``. With the duty held over a step (the PWM register), the exact
+zero-order-hold step is one matrix product, ``x' = Phi [x; duty; 1]`` with
+``Phi = expm([[A, B, e], [0, 0, 0], [0, 0, 0]] h)`` (cached per mode and step length). When
+the mode at the end of a step differs from the mode at its start, the step is halved
+(recursively, up to ``event_levels`` times) so that the switch is located in time: the only
+sub-stepping the model needs.
+
+``derivative(t, x, u, params)`` is the same continuous model written directly from the
+physics (``sim.motor``, ``sim.drivetrain``), the oracle for ``scipy.integrate.solve_ivp``.
+Functions take python-control's ``(t, x, u, params)`` order and have no side effects; the
+plant objects only memoise their matrices. Only ``sim.loop`` owns the clock and the state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+
+from sim.drivetrain import belt_torque_nm, load_factor
+from sim.motor import friction_torque_nm
+from sim.params import PlantParams
+
+__all__ = [
+    "BatchPlant",
+    "Coefficients",
+    "N_X",
+    "ScalarPlant",
+    "STATE_NAMES",
+    "affine",
+    "derivative",
+    "mode_keys",
+]
+
+N_X = 5
+I_A, POS, VEL, TWIST, PVEL = range(N_X)
+STATE_NAMES = ("current_a", "motor_pos_rad", "motor_vel_rad_s", "twist_rad", "platter_vel_rad_s")
+
+# Bridge modes.
+B_ON, B_LIMIT_POS, B_LIMIT_NEG, B_DIODE_POS, B_DIODE_NEG, B_OPEN = range(6)
+# key = (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow, with fm, fp, contact in
+# {0, 1, 2} for {negative, band/gap, positive} and flow 1 when the load drives the motor.
+N_MODES = 6 * 3 * 3 * 3 * 2
+
+
+@dataclass(frozen=True)
+class Coefficients:
+    """The numbers the mode logic and the matrices need (floats, or ``(N,)`` arrays)."""
+
+    vs: Any
+    r: Any
+    l: Any  # noqa: E741 - inductance, the usual symbol
+    kt: Any
+    ke: Any
+    jm: Any
+    bm: Any
+    tcm: Any
+    wbm: Any
+    jp: Any
+    bp: Any
+    tcp: Any
+    wbp: Any
+    k: Any
+    c: Any
+    half: Any
+    n: Any
+    eta: Any
+    icl: Any
+    vd2: Any
+
+    @classmethod
+    def from_params(cls, p: PlantParams) -> Coefficients:
+        def f(v: Any) -> Any:
+            return v if isinstance(v, np.ndarray) else float(v)
+
+        return cls(
+            vs=f(p.supply.voltage_v),
+            r=f(p.motor.r_ohm + p.bridge.r_on_path_ohm),
+            l=f(p.motor.l_h),
+            kt=f(p.motor.kt_nm_a),
+            ke=f(p.motor.ke_v_s_rad),
+            jm=f(p.motor.j_kgm2),
+            bm=f(p.motor.viscous_nm_s_rad),
+            tcm=f(p.motor.coulomb_nm),
+            wbm=f(p.motor.coulomb_band_rad_s),
+            jp=f(p.platter.j_kgm2),
+            bp=f(p.platter.viscous_nm_s_rad),
+            tcp=f(p.platter.coulomb_nm),
+            wbp=f(p.platter.coulomb_band_rad_s),
+            k=f(p.belt.stiffness_nm_rad),
+            c=f(p.belt.damping_nm_s_rad),
+            half=f(0.5 * np.radians(p.gearbox.backlash_deg) / p.belt.ratio),
+            n=f(p.gearbox.ratio * p.belt.ratio),
+            eta=f(p.gearbox.efficiency),
+            icl=f(p.bridge.current_limit_a),
+            vd2=f(p.supply.voltage_v + 2.0 * p.bridge.diode_drop_v),
+        )
+
+
+def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous ``(A (5, 5), B (5,), e (5,))`` of mode ``key`` (scalar coefficients)."""
+    flow = key % 2
+    contact = (key // 2) % 3 - 1
+    fp = (key // 6) % 3 - 1
+    fm = (key // 18) % 3 - 1
+    bridge = key // 54
+    a = np.zeros((N_X, N_X))
+    b = np.zeros(N_X)
+    e = np.zeros(N_X)
+    if bridge in (B_ON, B_DIODE_POS, B_DIODE_NEG):
+        a[I_A, I_A] = -co.r / co.l
+        a[I_A, VEL] = -co.ke / co.l
+    if bridge == B_ON:
+        b[I_A] = co.vs / co.l
+    elif bridge == B_DIODE_POS:
+        e[I_A] = -co.vd2 / co.l
+    elif bridge == B_DIODE_NEG:
+        e[I_A] = co.vd2 / co.l
+    a[POS, VEL] = 1.0
+    # Belt torque on the platter, tau = kt_ twist + kwm w_m + kwp w_p + t0 (zero in the gap).
+    if contact:
+        k_tw, k_wm, k_wp, t0 = co.k, co.c / co.n, -co.c, -co.k * co.half * contact
+    else:
+        k_tw = k_wm = k_wp = t0 = 0.0
+    g = co.eta / co.n if flow else 1.0 / (co.n * co.eta)
+    a[VEL, I_A] = co.kt / co.jm
+    a[VEL, VEL] = (-co.bm - g * k_wm) / co.jm
+    a[VEL, TWIST] = -g * k_tw / co.jm
+    a[VEL, PVEL] = -g * k_wp / co.jm
+    e[VEL] = -g * t0 / co.jm
+    if fm:
+        e[VEL] -= fm * co.tcm / co.jm
+    else:
+        a[VEL, VEL] -= co.tcm / co.wbm / co.jm
+    a[TWIST, VEL] = 1.0 / co.n
+    a[TWIST, PVEL] = -1.0
+    a[PVEL, TWIST] = k_tw / co.jp
+    a[PVEL, VEL] = k_wm / co.jp
+    a[PVEL, PVEL] = (k_wp - co.bp) / co.jp
+    e[PVEL] = t0 / co.jp
+    if fp:
+        e[PVEL] -= fp * co.tcp / co.jp
+    else:
+        a[PVEL, PVEL] -= co.tcp / co.wbp / co.jp
+    return a, b, e
+
+
+def zoh(key: int, co: Coefficients, h_s: float) -> np.ndarray:
+    """Exact zero-order-hold step of mode ``key`` over ``h_s``: ``Phi`` of shape (5, 7)."""
+    a, b, e = affine(key, co)
+    m = np.zeros((N_X + 2, N_X + 2))
+    m[:N_X, :N_X] = a
+    m[:N_X, N_X] = b
+    m[:N_X, N_X + 1] = e
+    return scipy.linalg.expm(m * h_s)[:N_X, :]
+
+
+def mode_keys(x: np.ndarray, duty: Any, enable: Any, co: Coefficients) -> np.ndarray:
+    """Mode key of every batch member (x of shape (N, 5)) -> int array (N,)."""
+    i, w, tw, wp = x[:, I_A], x[:, VEL], x[:, TWIST], x[:, PVEL]
+    fm = np.where(w > co.wbm, 2, np.where(w < -co.wbm, 0, 1))
+    fp = np.where(wp > co.wbp, 2, np.where(wp < -co.wbp, 0, 1))
+    contact = np.where(tw > co.half, 2, np.where(tw < -co.half, 0, 1))
+    tb = np.where(
+        contact == 1,
+        0.0,
+        co.k * (tw - co.half * (contact - 1)) + co.c * (w / co.n - wp),
+    )
+    flow = (tb * w < 0).astype(np.int64)
+    drive = co.vs * duty - co.r * i - co.ke * w
+    on = np.where(
+        (i >= co.icl) & (drive > 0),
+        B_LIMIT_POS,
+        np.where((i <= -co.icl) & (drive < 0), B_LIMIT_NEG, B_ON),
+    )
+    emf = co.ke * w
+    off = np.where(
+        i > 0,
+        B_DIODE_POS,
+        np.where(
+            i < 0,
+            B_DIODE_NEG,
+            np.where(emf > co.vd2, B_DIODE_NEG, np.where(emf < -co.vd2, B_DIODE_POS, B_OPEN)),
+        ),
+    )
+    bridge = np.where(enable, on, off)
+    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+
+
+def derivative(t: float, x: np.ndarray, u: tuple[Any, Any], params: PlantParams) -> np.ndarray:
+    """dx/dt of the continuous model (x of shape (5,) or (N, 5); u = (duty, enable)).
+
+    Written from the physics functions, independently of ``affine``, so that comparing the
+    discrete plant with ``solve_ivp`` on this function checks the matrices as well.
+    """
+    duty, enable = u
+    m, pl = params.motor, params.platter
+    n = params.total_ratio
+    vs = params.supply.voltage_v
+    r = m.r_ohm + params.bridge.r_on_path_ohm
+    vd2 = vs + 2.0 * params.bridge.diode_drop_v
+    icl = params.bridge.current_limit_a
+    i, w, tw, wp = x[..., I_A], x[..., VEL], x[..., TWIST], x[..., PVEL]
+    emf = m.ke_v_s_rad * w
+    di_on = (vs * duty - r * i - emf) / m.l_h
+    di_on = np.where(((i >= icl) & (di_on > 0)) | ((i <= -icl) & (di_on < 0)), 0.0, di_on)
+    v_off = np.where(i > 0, -vd2, np.where(i < 0, vd2, np.clip(emf, -vd2, vd2)))
+    di_off = np.where((i == 0) & (np.abs(emf) <= vd2), 0.0, (v_off - r * i - emf) / m.l_h)
+    tb = belt_torque_nm(tw, w / n - wp, params)
+    g = load_factor(tb, w, params)
+    dx = np.empty_like(x, dtype=float)
+    dx[..., I_A] = np.where(enable, di_on, di_off)
+    dx[..., POS] = w
+    dx[..., VEL] = (
+        m.kt_nm_a * i
+        - friction_torque_nm(w, m.coulomb_nm, m.coulomb_band_rad_s, m.viscous_nm_s_rad)
+        - g * tb
+    ) / m.j_kgm2
+    dx[..., TWIST] = w / n - wp
+    dx[..., PVEL] = (
+        tb - friction_torque_nm(wp, pl.coulomb_nm, pl.coulomb_band_rad_s, pl.viscous_nm_s_rad)
+    ) / pl.j_kgm2
+    return dx
+
+
+class ScalarPlant:
+    """The N = 1 plant on plain Python floats (the fast path of the loop).
+
+    ``update(t_s, x, u) -> x_next`` advances a list of 5 floats by ``h_s`` with
+    ``u = (duty, enable)`` held. It returns a new list and never changes ``x``. The object
+    memoises one ``Phi`` per (mode, halving level); ``n_events`` counts located mode
+    switches (statistics only).
+    """
+
+    def __init__(self, params: PlantParams, h_s: float, event_levels: int = 20) -> None:
+        if params.batch_size() is not None:
+            raise ValueError("ScalarPlant needs scalar parameters; use BatchPlant")
+        self.params = params
+        self.h_s = float(h_s)
+        self.event_levels = int(event_levels)
+        self.co = Coefficients.from_params(params)
+        self._phi: dict[int, tuple[tuple[float, ...], ...]] = {}
+        self.n_events = 0
+
+    def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
+        """``Phi`` of mode ``key`` over ``h_s / 2**level`` as nested tuples (memoised)."""
+        slot = key * 64 + level
+        rows = self._phi.get(slot)
+        if rows is None:
+            mat = zoh(key, self.co, self.h_s / (1 << level))
+            rows = tuple(tuple(float(v) for v in row) for row in mat)
+            self._phi[slot] = rows
+        return rows
+
+    def key(self, x: list[float], duty: float, enable: bool) -> int:
+        """Mode key of state ``x`` under input (duty, enable); same rules as ``mode_keys``."""
+        co = self.co
+        i, _, w, tw, wp = x
+        fm = 2 if w > co.wbm else (0 if w < -co.wbm else 1)
+        fp = 2 if wp > co.wbp else (0 if wp < -co.wbp else 1)
+        if tw > co.half:
+            contact = 2
+            tb = co.k * (tw - co.half) + co.c * (w / co.n - wp)
+        elif tw < -co.half:
+            contact = 0
+            tb = co.k * (tw + co.half) + co.c * (w / co.n - wp)
+        else:
+            contact = 1
+            tb = 0.0
+        flow = 1 if tb * w < 0 else 0
+        if enable:
+            drive = co.vs * duty - co.r * i - co.ke * w
+            if i >= co.icl and drive > 0:
+                bridge = B_LIMIT_POS
+            elif i <= -co.icl and drive < 0:
+                bridge = B_LIMIT_NEG
+            else:
+                bridge = B_ON
+        elif i > 0:
+            bridge = B_DIODE_POS
+        elif i < 0:
+            bridge = B_DIODE_NEG
+        else:
+            emf = co.ke * w
+            bridge = B_DIODE_NEG if emf > co.vd2 else (B_DIODE_POS if emf < -co.vd2 else B_OPEN)
+        return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+
+    def update(self, t_s: float, x: list[float], u: tuple[float, bool]) -> list[float]:
+        """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state."""
+        duty, enable = u
+        return self._advance(x, duty, enable, self.key(x, duty, enable), 0)
+
+    def _advance(self, x: list[float], d: float, en: bool, key: int, level: int) -> list[float]:
+        r0, r1, r2, r3, r4 = self.phi(key, level)
+        i, p, w, tw, wp = x
+        xn = [
+            r0[0] * i + r0[2] * w + r0[3] * tw + r0[4] * wp + r0[5] * d + r0[6],
+            p + r1[0] * i + r1[2] * w + r1[3] * tw + r1[4] * wp + r1[5] * d + r1[6],
+            r2[0] * i + r2[2] * w + r2[3] * tw + r2[4] * wp + r2[5] * d + r2[6],
+            r3[0] * i + r3[2] * w + r3[3] * tw + r3[4] * wp + r3[5] * d + r3[6],
+            r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6],
+        ]
+        key_end = self.key(xn, d, en)
+        if key_end == key:
+            return xn
+        if level >= self.event_levels:
+            # Located to h / 2**levels: accept. A freewheeling current that crossed zero stops
+            # there (the diodes block the reverse current); a current that reached the
+            # bridge's limitation is held at I_CL.
+            self.n_events += 1
+            bridge = key // 54
+            if (bridge == B_DIODE_POS and xn[0] < 0) or (bridge == B_DIODE_NEG and xn[0] > 0):
+                xn[0] = 0.0
+            # Entering the bridge's current limitation: the chopper holds I_CL exactly.
+            limit = key_end // 54
+            if limit == B_LIMIT_POS and xn[0] > self.co.icl:
+                xn[0] = self.co.icl
+            elif limit == B_LIMIT_NEG and xn[0] < -self.co.icl:
+                xn[0] = -self.co.icl
+            return xn
+        half = self._advance(x, d, en, key, level + 1)
+        return self._advance(half, d, en, self.key(half, d, en), level + 1)
+
+
+class BatchPlant:
+    """N plants stepped in lock-step with numpy; parameters scalar or ``(N,)`` per member.
+
+    ``update(t_s, x, u) -> x_next`` with ``x`` of shape ``(N, 5)`` and ``u = (duty (N,),
+    enable (N,))``. Members whose mode stays the same over the step (almost all, almost
+    always) share one matrix product per mode; the few that switch mode are stepped by the
+    members' ``ScalarPlant`` with event location.
+    """
+
+    def __init__(self, params: PlantParams, n: int, h_s: float, event_levels: int = 20) -> None:
+        size = params.batch_size()
+        if size is not None and size != n:
+            raise ValueError(f"batch = {n}: parameter arrays have {size} members")
+        self.n = int(n)
+        self.h_s = float(h_s)
+        self.per_member = size is not None
+        self.co = Coefficients.from_params(params)
+        if self.per_member:
+            self.members = [ScalarPlant(params.member(k), h_s, event_levels) for k in range(n)]
+        else:
+            shared = ScalarPlant(params, h_s, event_levels)
+            self.members = [shared] * n
+        self._phi: dict[int, np.ndarray] = {}
+
+    @property
+    def n_events(self) -> int:
+        return sum(p.n_events for p in {id(p): p for p in self.members}.values())
+
+    def _phi_t(self, key: int) -> np.ndarray:
+        """Transposed ``Phi`` for row-vector products: (7, 5) shared or (N, 7, 5)."""
+        mat = self._phi.get(key)
+        if mat is None:
+            if self.per_member:
+                mat = np.stack([np.array(p.phi(key)).T for p in self.members])
+            else:
+                mat = np.array(self.members[0].phi(key)).T
+            mat = np.ascontiguousarray(mat)
+            self._phi[key] = mat
+        return mat
+
+    def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
+        duty, enable = u
+        duty = np.broadcast_to(np.asarray(duty, dtype=float), (self.n,))
+        enable = np.broadcast_to(np.asarray(enable, dtype=bool), (self.n,))
+        keys = mode_keys(x, duty, enable, self.co)
+        xa = np.empty((self.n, N_X + 2))
+        xa[:, :N_X] = x
+        xa[:, N_X] = duty
+        xa[:, N_X + 1] = 1.0
+        k0 = int(keys[0])
+        uniform = bool(np.all(keys == k0))
+        groups = [(k0, None)] if uniform else [(int(k), keys == k) for k in np.unique(keys)]
+        xn = np.empty_like(x, dtype=float)
+        for key, sel in groups:
+            phi_t = self._phi_t(key)
+            if self.per_member:
+                if sel is None:
+                    xn[:] = np.einsum("nj,nji->ni", xa, phi_t)
+                else:
+                    xn[sel] = np.einsum("nj,nji->ni", xa[sel], phi_t[sel])
+            elif sel is None:
+                np.matmul(xa, phi_t, out=xn)
+            else:
+                xn[sel] = xa[sel] @ phi_t
+        moved = np.nonzero(mode_keys(xn, duty, enable, self.co) != keys)[0]
+        for j in moved:
+            xn[j] = self.members[j].update(t_s, x[j].tolist(), (float(duty[j]), bool(enable[j])))
+        return xn
+
+
+def motor_to_axis_deg(motor_pos_rad: Any, params: PlantParams) -> Any:
+    """Axis (gearmotor output) angle in degrees from the motor angle."""
+    return np.degrees(motor_pos_rad) / params.gearbox.ratio
+
+
+def platter_pos_rad(x: np.ndarray, params: PlantParams) -> Any:
+    """Platter angle (rad) from a state (5,) or (N, 5)."""
+    return x[..., POS] / params.total_ratio - x[..., TWIST]

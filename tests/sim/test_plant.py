@@ -1,0 +1,199 @@
+"""Plant: exact discretisation against solve_ivp, analytic steady states, modes."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from sim import drivetrain
+from sim.motor import no_load_speed_rad_s, steady_speed_rad_s
+from sim.params import BridgeParams, GearboxParams, MotorParams, PlantParams
+from sim.plant import (
+    B_DIODE_POS,
+    B_LIMIT_POS,
+    B_OPEN,
+    BatchPlant,
+    Coefficients,
+    ScalarPlant,
+    affine,
+    derivative,
+    mode_keys,
+)
+
+DT_S = 0.002
+
+
+def _run(plant: ScalarPlant, x0: list[float], duties: list[float], enable: bool = True):
+    xs = []
+    x = list(x0)
+    for k, d in enumerate(duties):
+        x = plant.update(k * DT_S, x, (d, enable))
+        xs.append(x)
+    return np.array(xs)
+
+
+def _oracle(params: PlantParams, x0, duties, enable=True) -> np.ndarray:
+    """solve_ivp (rtol 1e-10) of the continuous model, one call per held duty."""
+    y = np.array(x0, dtype=float)
+    out = []
+    for k, d in enumerate(duties):
+        sol = solve_ivp(
+            lambda t, s, d=d: derivative(t, s, (d, enable), params),
+            (k * DT_S, (k + 1) * DT_S),
+            y,
+            method="DOP853",
+            rtol=1e-10,
+            atol=1e-12,
+        )
+        y = sol.y[:, -1]
+        out.append(y)
+    return np.array(out)
+
+
+def test_zoh_matches_solve_ivp_through_mode_switches():
+    # Accelerate, reverse (friction bands, backlash crossing, power-flow reversal), coast.
+    params = PlantParams()
+    duties = [0.6] * 150 + [-0.7] * 150 + [0.05] * 100 + [0.0] * 100
+    xs = _run(ScalarPlant(params, DT_S), [0.0] * 5, duties)
+    ref = _oracle(params, [0.0] * 5, duties)
+    err_rev = np.max(np.abs(xs[:, 1] - ref[:, 1])) / (2 * math.pi)
+    assert err_rev < 1e-6
+    np.testing.assert_allclose(xs[:, 2], ref[:, 2], atol=1e-4)
+
+
+def test_steady_speed_matches_analytic():
+    params = PlantParams()
+    xs = _run(ScalarPlant(params, DT_S), [0.0] * 5, [0.5] * 1500)
+    assert xs[-1][2] == pytest.approx(steady_speed_rad_s(params, 0.5), rel=1e-6)
+
+
+def test_bare_motor_no_load_speed():
+    # With the load made negligible the drive train runs at the bare motor's no-load speed.
+    light = PlantParams(
+        platter=dataclasses.replace(
+            PlantParams().platter, j_kgm2=1e-4, coulomb_nm=0.0, viscous_nm_s_rad=0.0
+        ),
+    )
+    xs = _run(ScalarPlant(light, DT_S), [0.0] * 5, [1.0] * 1500)
+    expected = no_load_speed_rad_s(light.motor, 24.0, light.bridge.r_on_path_ohm)
+    assert xs[-1][2] == pytest.approx(expected, rel=1e-4)
+    # ~15,800 rpm: the assumed motor's no-load speed at 24 V.
+    assert expected * 60 / (2 * math.pi) == pytest.approx(15_600, rel=0.03)
+
+
+def test_belt_resonance_from_eigenvalues():
+    params = PlantParams()
+    co = Coefficients.from_params(params)
+    key = ((0 * 3 + 2) * 3 + 2) * 3 * 2 + 2 * 2  # bridge on, both sliding +, contact +
+    a, _, _ = affine(key, co)
+    eig = np.linalg.eigvals(a)
+    osc = eig[np.abs(eig.imag) > 1.0]
+    f_hz = np.abs(osc[0]) / (2 * math.pi)
+    assert 25.0 < f_hz < 32.0
+    assert f_hz == pytest.approx(drivetrain.resonance_hz(params), rel=0.05)
+
+
+def test_belt_resonance_in_time_domain():
+    # Hold the motor still (huge inertia) and ring the platter: the twist oscillates at
+    # sqrt(k / J_p) (the motor side does not move); measure the period from zero crossings.
+    params = PlantParams(
+        motor=dataclasses.replace(MotorParams(), j_kgm2=1e3),
+        platter=dataclasses.replace(PlantParams().platter, coulomb_nm=0.0, viscous_nm_s_rad=0.0),
+        gearbox=dataclasses.replace(GearboxParams(), backlash_deg=0.0),
+    )
+    params = dataclasses.replace(
+        params, belt=dataclasses.replace(params.belt, damping_nm_s_rad=0.0)
+    )
+    plant = ScalarPlant(params, DT_S / 20)
+    x = [0.0, 0.0, 0.0, 1e-3, 0.0]
+    tw = []
+    for _ in range(4000):
+        x = plant.update(0.0, x, (0.0, False))
+        tw.append(x[3])
+    tw = np.array(tw)
+    crossings = np.nonzero(np.diff(np.sign(tw)) != 0)[0]
+    period_s = 2 * np.mean(np.diff(crossings)) * DT_S / 20
+    expected = 2 * math.pi * math.sqrt(params.platter.j_kgm2 / params.belt.stiffness_nm_rad)
+    assert period_s == pytest.approx(expected, rel=0.01)
+
+
+def test_bridge_current_limitation_pins_current():
+    params = PlantParams(bridge=BridgeParams(current_limit_a=10.0))
+    plant = ScalarPlant(params, DT_S)
+    xs = _run(plant, [0.0] * 5, [1.0] * 50)
+    assert np.max(xs[:, 0]) <= 10.0 + 1e-9
+    assert np.max(xs[:, 0]) > 9.99
+    assert plant.key(list(xs[0]), 1.0, True) // 54 == B_LIMIT_POS
+    # The oracle agrees.
+    ref = _oracle(params, [0.0] * 5, [1.0] * 50)
+    np.testing.assert_allclose(xs[:, 2], ref[:, 2], rtol=1e-6)
+
+
+def test_disabled_bridge_current_decays_to_zero_and_stays():
+    params = PlantParams()
+    plant = ScalarPlant(params, DT_S)
+    x = _run(plant, [0.0] * 5, [0.8] * 200)[-1].tolist()
+    assert x[0] > 0.1
+    assert plant.key(x, 0.0, False) // 54 == B_DIODE_POS
+    xs = _run(plant, x, [0.0] * 50, enable=False)
+    assert np.all(xs[:, 0] >= 0.0)
+    assert xs[-1][0] == 0.0
+    assert plant.key(list(xs[-1]), 0.0, False) // 54 == B_OPEN
+    assert xs[-1][2] < x[2]  # coasting down
+
+
+def test_batch_matches_scalar_and_per_member_params():
+    base = PlantParams()
+    r = np.array([1.0, 1.2, 1.5, 2.0])
+    params = dataclasses.replace(base, motor=dataclasses.replace(base.motor, r_ohm=r))
+    batch = BatchPlant(params, 4, DT_S)
+    x = np.zeros((4, 5))
+    duty = np.array([0.5, 0.5, -0.3, 0.9])
+    for k in range(300):
+        x = batch.update(k * DT_S, x, (duty, True))
+    for j in range(4):
+        xs = _run(ScalarPlant(params.member(j), DT_S), [0.0] * 5, [duty[j]] * 300)
+        np.testing.assert_allclose(x[j], xs[-1], rtol=1e-12, atol=1e-12)
+
+
+def test_vectorised_and_scalar_mode_keys_agree():
+    params = PlantParams()
+    plant = ScalarPlant(params, DT_S)
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(2000, 5)) * np.array([30.0, 1.0, 0.2, 1e-3, 3e-3])
+    duty = rng.uniform(-1, 1, 2000)
+    enable = rng.uniform(size=2000) > 0.3
+    x[::7, 0] = 0.0
+    keys = mode_keys(x, duty, enable, plant.co)
+    for j in range(2000):
+        assert plant.key(x[j].tolist(), float(duty[j]), bool(enable[j])) == keys[j]
+    assert len(set(keys.tolist())) > 20
+
+
+def test_power_flow_direction_changes_reflected_torque():
+    params = PlantParams()
+    tb = np.array([1.0, 1.0])
+    w = np.array([10.0, -10.0])
+    g = drivetrain.load_factor(tb, w, params)
+    assert g[0] == pytest.approx(1 / (400 * 0.8))
+    assert g[1] == pytest.approx(0.8 / 400)
+
+
+def test_derivative_is_batched_and_pure():
+    params = PlantParams()
+    x = np.array([[1.0, 2.0, 30.0, 1e-3, 0.05], [-1.0, 0.0, -3.0, -2e-3, 0.0]])
+    x_copy = x.copy()
+    d = derivative(0.0, x, (np.array([0.2, -0.1]), np.array([True, True])), params)
+    assert d.shape == (2, 5)
+    np.testing.assert_array_equal(x, x_copy)
+    for j, dj in enumerate([0.2, -0.1]):
+        np.testing.assert_allclose(d[j], derivative(0.0, x[j], (dj, True), params))
+
+
+def test_diode_mode_key_when_current_positive():
+    plant = ScalarPlant(PlantParams(), DT_S)
+    assert plant.key([1.0, 0.0, 0.0, 0.0, 0.0], 0.0, False) // 54 == B_DIODE_POS
