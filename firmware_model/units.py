@@ -39,3 +39,9 @@ TOTAL_RATIO = GEAR_RATIO * BELT_RATIO  # 400: motor turns per platter turn
 DEG_PER_RAD = 180.0 / math.pi
 RAD_PER_DEG = math.pi / 180.0
 MDEG_PER_DEG = 1000.0
+
+# One motor encoder count in axis degrees: 360 / (16384 * 80) = 2.7466e-4 deg. In the
+# fixed-point control law (Q16.16 axis degrees) it is exactly 18 raw units.
+AXIS_DEG_PER_COUNT = 360.0 / (ENCODER_COUNTS_PER_REV * GEAR_RATIO)
+# Motor rad/s per axis deg/s: 80 * pi / 180 = 1.396.
+MOTOR_RAD_S_PER_AXIS_DPS = GEAR_RATIO * RAD_PER_DEG

@@ -1,0 +1,664 @@
+"""The simulated STM32F103 board: the 500 Hz servo tick, the current-loop ISR, command
+handling, safety and telemetry, around the control law of ``firmware_model/servo.py``.
+
+The simulation loop (``sim/loop.py``) calls, per servo tick::
+
+    tx = fw.servo_tick(encoder_counts, rx_bytes, tx_free)      # once
+    duty, enable = fw.current_tick(adc_counts)                  # current_loop_multiple times
+
+One servo tick, in order (seed 000 Fig. 5): read the encoder and unwrap it; estimate the
+velocity; handle the commands received since the last tick; take the setpoint from the
+planner (or the raw target for ``Profile.STEP``); run the position and velocity loops; check
+the trips; queue replies and telemetry into the UART TX FIFO (whole frames only).
+
+States (``serial_protocol.messages.State``): ``DISABLED`` (bridge off) -> ``SetEnable`` ->
+``IDLE`` (holding where it was enabled) -> ``Move`` -> ``MOVING`` -> ``HOLDING`` (holding
+the target). Any trip -> ``FAULT`` (bridge off, motion abandoned) -> ``ClearFault`` ->
+``DISABLED``. Faults are data: a code in the status and telemetry and a ``FaultReport``.
+
+Batch (``batch=N``): the control law and the trips run per member; the planner and the
+command handling are shared. A command is refused (``FAULT_ACTIVE`` / ``DISABLED``) only
+if no member could follow it; the replies, ``Status`` and telemetry describe member 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from firmware_model.params import FirmwareParams
+from firmware_model.servo import ArrayLaw, ScalarLaw
+from firmware_model.stability import unstable_reason
+from planner.online import OnlinePlanner
+from serial_protocol import frame
+from serial_protocol.messages import (
+    PROTOCOL_VERSION,
+    Ack,
+    ClearFault,
+    Fault,
+    FaultReport,
+    Gains,
+    GetGains,
+    GetLimits,
+    GetStatus,
+    Hello,
+    HelloReply,
+    Limits,
+    Loop,
+    Malformed,
+    Move,
+    Nack,
+    NackCode,
+    Profile,
+    SetEnable,
+    SetGains,
+    SetLimits,
+    SetTelemetry,
+    State,
+    Status,
+    Stop,
+    Telemetry,
+)
+
+__all__ = ["FW_VERSION", "Firmware"]
+
+FW_VERSION = (0, 1, 0)
+
+_PROFILE_KIND = {Profile.TRAPEZOID: "trapezoid", Profile.SCURVE: "scurve"}
+# Loop -> the run-time gain names of (kp, ki).
+_LOOP_GAINS = {
+    Loop.CURRENT: ("kp_i", "ki_i"),
+    Loop.VELOCITY: ("kp_v", "ki_v"),
+    Loop.POSITION: ("kp_p", None),
+}
+# Commands that change something: a repeat of the last cmd_id is answered, not re-applied.
+_MUTATING = (Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry)
+
+
+def _finite(*values: float) -> bool:
+    return all(math.isfinite(v) for v in values)
+
+
+class Firmware:
+    """The board. See the module docstring for the call sequence and the states.
+
+    Args:
+        params: the firmware tables.
+        batch: None for one axis (scalars in and out), or N for N axes in lock-step
+            (``(N,)`` arrays in and out; gains in ``params`` may be ``(N,)`` arrays).
+
+    Attributes:
+        tick: servo ticks done.
+        counters: what happened on the link and in the command handler (never silent):
+            ``rx_messages, rx_malformed, commands_applied, duplicates, nacks, nack_<CODE>,
+            faults, fault_<NAME>, tx_frames, tx_bytes, tx_telemetry_dropped,
+            tx_replies_dropped, telemetry_decimation``.
+        decoder: the ``serial_protocol.frame.Decoder`` fed with the received bytes.
+    """
+
+    def __init__(self, params: FirmwareParams, *, batch: int | None = None) -> None:
+        gain_batch = params.batch_size()
+        if gain_batch is not None and gain_batch != batch:
+            raise ValueError(f"batch = {batch!r}: gain arrays have length {gain_batch}")
+        if batch is not None and batch < 1:
+            raise ValueError(f"batch = {batch!r}: must be >= 1")
+        self.params = params
+        self.batch = batch
+        self._scalar = batch is None
+        fixed = params.servo.arithmetic == "fixed"
+        self._array_law = fixed or batch is not None
+        self.law: ScalarLaw | ArrayLaw
+        if self._array_law:
+            self.law = ArrayLaw(params, batch or 1, fixed=fixed)
+        else:
+            self.law = ScalarLaw(params)
+        n = batch or 1
+        self._n = n
+        self.dt_s = params.servo.dt_s
+        self.tick = 0
+        self._booted = False
+        # Per member: latched fault code and bridge enable.
+        self._fault = np.zeros(n, dtype=np.int64)
+        self._enabled = np.zeros(n, dtype=bool)
+        self._fault_s = 0  # member 0 / scalar copies for the fast path
+        self._enabled_s = False
+        self._oc_ticks = np.zeros(n, dtype=np.int64)
+        # Limits that SetLimits may change.
+        lim = params.limits
+        self.v_max_dps = lim.v_max_dps
+        self.a_max_dps2 = lim.a_max_dps2
+        self.current_limit_a = lim.current_limit_a
+        self.following_error_deg = lim.following_error_deg
+        # Motion (shared by the batch).
+        self._planners: dict[str, OnlinePlanner] = {}
+        self._kind = "trapezoid"
+        self._mode = "hold"  # hold | plan | step
+        self._moved = False
+        self._moving = False
+        self._target_deg = 0.0
+        self._j_max = 0.0
+        self._v_clamp_dps = lim.v_max_dps
+        self.sp_pos_deg = 0.0
+        self.sp_vel_dps = 0.0
+        self.sp_acc_dps2 = 0.0
+        # Link.
+        self.decoder = frame.Decoder()
+        self._replies: deque[Any] = deque()
+        self._last_cmd: tuple[int, int] | None = None
+        self._last_reply: Any = None
+        self._seq = 0
+        self._last_rx_tick = 0
+        tel = params.telemetry
+        bytes_per_tick = tel.baud / 10.0 / params.servo.tick_hz
+        budget = bytes_per_tick * (1.0 - tel.reply_reserve)
+        self._auto_decimation = max(1, math.ceil(frame.TELEMETRY_FRAME_BYTES / budget))
+        self._watchdog_ticks = round(params.safety.watchdog_s * params.servo.tick_hz)
+        self.counters: dict[str, int] = {
+            "rx_messages": 0,
+            "rx_malformed": 0,
+            "commands_applied": 0,
+            "duplicates": 0,
+            "nacks": 0,
+            "faults": 0,
+            "tx_frames": 0,
+            "tx_bytes": 0,
+            "tx_telemetry_dropped": 0,
+            "tx_replies_dropped": 0,
+            "telemetry_decimation": 0,
+        }
+        for code in NackCode:
+            self.counters[f"nack_{code.name}"] = 0
+        for fault in Fault:
+            if fault is not Fault.NONE:
+                self.counters[f"fault_{fault.name}"] = 0
+        self._set_decimation(tel.decimation)
+
+    # ------------------------------------------------------------------ public API
+    def servo_tick(self, encoder_counts: Any, rx_bytes: bytes, tx_free: int) -> bytes:
+        """One 500 Hz servo tick; returns the bytes written into the UART TX FIFO.
+
+        Args:
+            encoder_counts: AS5048 reading(s), int in [0, 16383] (``(N,)`` in batch).
+            rx_bytes: bytes the UART received from the PC since the last tick.
+            tx_free: free bytes in the TX FIFO; only whole frames that fit are written.
+        """
+        law = self.law
+        if not self._booted:
+            self._boot(encoder_counts)
+        law.estimate(encoder_counts)
+        if rx_bytes:
+            for msg in self.decoder.feed(rx_bytes):
+                self._handle(msg)
+        t_s = self.tick * self.dt_s
+        mode = self._mode
+        if mode == "plan":
+            planner = self._planners[self._kind]
+            p, v, a = planner.sample(t_s)
+            self._moving = planner.moving
+        elif mode == "step":
+            p, v, a = self._target_deg, 0.0, 0.0
+            if self._moving:
+                self._moving = not self._in_position()
+        else:
+            p, v, a = self.sp_pos_deg, 0.0, 0.0
+        self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2 = p, v, a
+        if self._scalar and not self._array_law:
+            if self._enabled_s:
+                law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
+                self._check_scalar()
+        elif self._enabled.any():
+            law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
+            self._check_array()
+        self.tick += 1
+        return self._transmit(tx_free)
+
+    def current_tick(self, adc_counts: Any) -> tuple[Any, Any]:
+        """One current-loop period: ``(duty, enable)`` for the bridge.
+
+        Args:
+            adc_counts: the IS-pin reading(s), int in [0, 4095] (``(N,)`` in batch).
+
+        Returns:
+            ``duty`` in [-1, 1] on the timer's ARR grid, applied by the bridge for the next
+            current-loop period, and ``enable`` (False: bridge off, the motor coasts).
+        """
+        law = self.law
+        if not self._array_law:
+            enabled = self._enabled_s
+            duty = law.current(adc_counts, enabled)
+            if enabled:
+                thr = self.params.safety.over_current_a
+                if abs(law.current_meas_a) > thr:
+                    self._oc_ticks[0] += 1
+                    if self._oc_ticks[0] >= self.params.safety.over_current_ticks:
+                        self._trip(np.array([True]), Fault.OVER_CURRENT, law.current_meas_a)
+                        law.reset_control()
+                        return 0.0, False
+                else:
+                    self._oc_ticks[0] = 0
+            return duty, enabled
+        enabled = self._enabled.copy()
+        duty = law.current(adc_counts, enabled)
+        i_meas = law.current_meas_a
+        over = enabled & (np.abs(i_meas) > self.params.safety.over_current_a)
+        self._oc_ticks = np.where(over, self._oc_ticks + 1, 0)
+        trip = self._oc_ticks >= self.params.safety.over_current_ticks
+        if trip.any():
+            self._trip(trip, Fault.OVER_CURRENT, i_meas)
+            law.reset_control(trip)
+            duty = np.where(trip, 0.0, duty)
+            enabled = self._enabled.copy()
+        if self._scalar:
+            return float(duty[0]), bool(enabled[0])
+        return duty, enabled
+
+    def signals(self) -> dict[str, Any]:
+        """The firmware's view of this tick (floats, or ``(N,)`` arrays in batch)."""
+        law = self.law
+        state = self.state
+        fault = self.fault
+        out = {
+            "sp_pos_deg": self.sp_pos_deg,
+            "sp_vel_dps": self.sp_vel_dps,
+            "sp_acc_dps2": self.sp_acc_dps2,
+            "pos_deg": law.pos_deg,
+            "vel_dps": law.vel_dps,
+            "vel_raw_dps": law.vel_raw_dps,
+            "current_meas_a": law.current_meas_a,
+            "current_ref_a": law.current_ref_a,
+            "duty": law.duty,
+            "state": state,
+            "fault": fault,
+        }
+        if self._scalar and self._array_law:
+            for key in ("pos_deg", "vel_dps", "vel_raw_dps", "current_meas_a",
+                        "current_ref_a", "duty"):  # fmt: skip
+                out[key] = float(out[key][0])
+        return out
+
+    @property
+    def state(self) -> Any:
+        """``State`` code (int; ``(N,)`` int array in batch)."""
+        motion = State.MOVING if self._moving else (State.HOLDING if self._moved else State.IDLE)
+        if self._scalar:
+            if self._fault[0]:
+                return int(State.FAULT)
+            return int(motion) if self._enabled[0] else int(State.DISABLED)
+        st = np.where(self._enabled, int(motion), int(State.DISABLED))
+        return np.where(self._fault != 0, int(State.FAULT), st)
+
+    @property
+    def fault(self) -> Any:
+        """Latched ``Fault`` code (int; ``(N,)`` array in batch)."""
+        return int(self._fault[0]) if self._scalar else self._fault.copy()
+
+    @property
+    def telemetry_decimation(self) -> int:
+        """Ticks between telemetry frames actually used (0 = off); see ``counters``."""
+        return self.counters["telemetry_decimation"]
+
+    # ------------------------------------------------------------------ boot and state
+    def _boot(self, encoder_counts: Any) -> None:
+        self.law.reset(encoder_counts)
+        self._booted = True
+        pos = self._pos0()
+        self.sp_pos_deg = pos
+        if self.params.servo.start_enabled:
+            self._enable()
+
+    def _pos0(self) -> float:
+        pos = self.law.pos_deg
+        return float(pos) if isinstance(pos, float) else float(pos[0])
+
+    def _enable(self) -> None:
+        ok = self._fault == 0
+        self._enabled = ok.copy()
+        self._enabled_s = bool(ok[0])
+        if self._array_law:
+            self.law.reset_control()
+        else:
+            self.law.reset_control()
+        self._hold_here()
+        self._moved = False
+
+    def _disable(self) -> None:
+        self._enabled[:] = False
+        self._enabled_s = False
+        self._hold_here()
+
+    def _hold_here(self) -> None:
+        self._mode = "hold"
+        self._moving = False
+        self.sp_pos_deg = self._pos0()
+        self.sp_vel_dps = self.sp_acc_dps2 = 0.0
+        self._v_clamp_dps = self.v_max_dps
+
+    def _in_position(self) -> bool:
+        err = np.abs(np.asarray(self.law.pos_deg) - self._target_deg)
+        live = self._enabled if self._array_law else np.array([self._enabled_s])
+        return bool(np.all(err[live] <= self.params.limits.in_position_deg)) if live.any() else True
+
+    # ------------------------------------------------------------------ safety
+    def _check_scalar(self) -> None:
+        law, s = self.law, self.params.safety
+        if abs(law.innovation_counts) > s.encoder_jump_counts or (
+            law.stuck_ticks >= s.encoder_stuck_ticks
+            and abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps
+        ):
+            self._trip(np.array([True]), Fault.ENCODER, float(law._raw_prev))
+        elif abs(law.vel_dps) > s.over_speed_dps:
+            self._trip(np.array([True]), Fault.OVER_SPEED, law.vel_dps)
+        elif self._mode != "step" and abs(self.sp_pos_deg - law.pos_deg) > (
+            self.following_error_deg
+        ):
+            self._trip(np.array([True]), Fault.FOLLOWING_ERROR, self.sp_pos_deg - law.pos_deg)
+        elif self._watchdog_ticks and self.tick - self._last_rx_tick > self._watchdog_ticks:
+            self._trip(np.array([True]), Fault.WATCHDOG, float(self.tick - self._last_rx_tick))
+
+    def _check_array(self) -> None:
+        law, s = self.law, self.params.safety
+        live = self._enabled.copy()
+        enc = (np.abs(law.innovation_counts) > s.encoder_jump_counts) | (
+            (law.stuck_ticks >= s.encoder_stuck_ticks)
+            & (np.abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps)
+        )
+        self._trip(live & enc, Fault.ENCODER, law._raw_prev.astype(float))
+        vel = law.vel_dps
+        live &= ~enc
+        over = np.abs(vel) > s.over_speed_dps
+        self._trip(live & over, Fault.OVER_SPEED, vel)
+        live &= ~over
+        if self._mode != "step":
+            err = self.sp_pos_deg - law.pos_deg
+            fe = np.abs(err) > self.following_error_deg
+            self._trip(live & fe, Fault.FOLLOWING_ERROR, err)
+            live &= ~fe
+        if self._watchdog_ticks and self.tick - self._last_rx_tick > self._watchdog_ticks:
+            self._trip(
+                live, Fault.WATCHDOG, np.full(self._n, float(self.tick - self._last_rx_tick))
+            )
+
+    def _trip(self, mask: Any, fault: Fault, value: Any) -> None:
+        """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion."""
+        mask = np.asarray(mask, dtype=bool) & (self._fault == 0)
+        if not mask.any():
+            return
+        self._fault[mask] = int(fault)
+        self._enabled[mask] = False
+        self._enabled_s = bool(self._enabled[0])
+        self._fault_s = int(self._fault[0])
+        hits = int(mask.sum())
+        self.counters["faults"] += hits
+        self.counters[f"fault_{fault.name}"] += hits
+        if self._array_law:
+            self.law.reset_control(mask)
+        else:
+            self.law.reset_control()
+        if mask[0]:
+            v = float(value) if np.ndim(value) == 0 else float(np.asarray(value)[0])
+            self._queue(FaultReport(tick=self.tick, fault=fault, value=v))
+        if not self._enabled.any():
+            self._hold_here()
+
+    # ------------------------------------------------------------------ commands
+    def _queue(self, msg: Any) -> None:
+        if len(self._replies) >= self.params.telemetry.reply_queue_frames:
+            self._replies.popleft()
+            self.counters["tx_replies_dropped"] += 1
+        self._replies.append(msg)
+
+    def _nack(self, msg: Any, code: NackCode) -> Nack:
+        self.counters["nacks"] += 1
+        self.counters[f"nack_{code.name}"] += 1
+        return Nack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE), code=code)
+
+    def _handle(self, msg: Any) -> None:
+        if isinstance(msg, Malformed):
+            self.counters["rx_malformed"] += 1
+            self.counters["nacks"] += 1
+            self.counters[f"nack_{NackCode(msg.code).name}"] += 1
+            self._queue(Nack(cmd_id=msg.cmd_id, msg_type=msg.msg_type, code=msg.code))
+            return
+        self.counters["rx_messages"] += 1
+        self._last_rx_tick = self.tick
+        if isinstance(msg, _MUTATING):
+            key = (msg.cmd_id, int(msg.MSG_TYPE))
+            if key == self._last_cmd:
+                self.counters["duplicates"] += 1
+                self._queue(self._last_reply)
+                return
+            reply = self._apply(msg)
+            self._last_cmd, self._last_reply = key, reply
+            if isinstance(reply, Ack):
+                self.counters["commands_applied"] += 1
+            self._queue(reply)
+            return
+        reply = self._query(msg)
+        if reply is not None:
+            self._queue(reply)
+
+    def _query(self, msg: Any) -> Any:
+        if isinstance(msg, Hello):
+            major, minor, patch = FW_VERSION
+            return HelloReply(
+                protocol_version=PROTOCOL_VERSION, fw_major=major, fw_minor=minor,
+                fw_patch=patch, tick_hz=round(self.params.servo.tick_hz),
+                counts_per_rev=16384,
+            )  # fmt: skip
+        if isinstance(msg, GetStatus):
+            vel = self.law.vel_dps
+            return Status(
+                cmd_id=msg.cmd_id, tick=self.tick, state=State(self._state0()),
+                fault=Fault(int(self._fault[0])), pos_deg=self._pos0(),
+                vel_dps=float(vel) if isinstance(vel, float) else float(vel[0]),
+                target_deg=self._target_deg if self._moved else self.sp_pos_deg,
+            )  # fmt: skip
+        if isinstance(msg, GetGains):
+            kp_name, ki_name = _LOOP_GAINS[Loop(msg.loop)]
+            g = self.law.gains
+            ki = _first(g[ki_name]) if ki_name else 0.0
+            return Gains(cmd_id=msg.cmd_id, loop=msg.loop, kp=_first(g[kp_name]), ki=ki, kd=0.0)
+        if isinstance(msg, GetLimits):
+            return Limits(
+                cmd_id=msg.cmd_id, v_max_dps=self.v_max_dps, a_max_dps2=self.a_max_dps2,
+                current_limit_a=self.current_limit_a,
+                following_error_deg=self.following_error_deg,
+            )  # fmt: skip
+        return None  # board -> PC messages sent to the board are ignored (counted as rx)
+
+    def _state0(self) -> int:
+        st = self.state
+        return int(st) if self._scalar else int(st[0])
+
+    def _apply(self, msg: Any) -> Ack | Nack:
+        """Validate completely, then apply; a NACKed command changes nothing."""
+        handler = {
+            Move: self._cmd_move,
+            Stop: self._cmd_stop,
+            SetGains: self._cmd_set_gains,
+            SetLimits: self._cmd_set_limits,
+            ClearFault: self._cmd_clear_fault,
+            SetEnable: self._cmd_set_enable,
+            SetTelemetry: self._cmd_set_telemetry,
+        }[type(msg)]
+        code = handler(msg)
+        if code is not None:
+            return self._nack(msg, code)
+        return Ack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE))
+
+    def _motion_refused(self) -> NackCode | None:
+        if (self._fault != 0).all():
+            return NackCode.FAULT_ACTIVE
+        if not self._enabled.any():
+            return NackCode.DISABLED
+        return None
+
+    def _cmd_move(self, m: Move) -> NackCode | None:
+        if not _finite(m.target_deg, m.v_max_dps, m.a_max_dps2, m.j_max_dps3):
+            return NackCode.NOT_FINITE
+        lim = self.params.limits
+        profile = Profile(m.profile)
+        if not (
+            lim.travel_min_deg <= m.target_deg <= lim.travel_max_deg
+            and 0.0 < m.v_max_dps <= self.v_max_dps
+            and 0.0 < m.a_max_dps2 <= self.a_max_dps2
+            and (profile is not Profile.SCURVE or m.j_max_dps3 > 0.0)
+        ):
+            return NackCode.OUT_OF_RANGE
+        kind = _PROFILE_KIND.get(profile)
+        if kind is not None and self._mode == "plan" and self._moving and kind != self._kind:
+            return NackCode.OUT_OF_RANGE  # the profile kind changes only at rest
+        refused = self._motion_refused()
+        if refused is not None:
+            return refused
+        t_s = self.tick * self.dt_s
+        if kind is None:  # Profile.STEP: no planning, the setpoint jumps to the target
+            self._mode = "step"
+            self._v_clamp_dps = m.v_max_dps
+        else:
+            planner = self._planners.get(kind)
+            if planner is None:
+                planner = self._planners[kind] = OnlinePlanner(kind)
+            if not (self._mode == "plan" and self._kind == kind):
+                # From hold or from a STEP move: start from rest where the axis is held (or,
+                # after a STEP move, where it is).
+                start = self._pos0() if self._mode == "step" else self.sp_pos_deg
+                planner.reset(start)
+            j_max = m.j_max_dps3 if kind == "scurve" else None
+            try:
+                planner.command(t_s, m.target_deg, v_max=m.v_max_dps, a_max=m.a_max_dps2,
+                                j_max=j_max)  # fmt: skip
+            except ValueError:
+                return NackCode.OUT_OF_RANGE
+            self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
+            self._v_clamp_dps = self.v_max_dps
+        self._target_deg = m.target_deg
+        self._moving = True
+        self._moved = True
+        return None
+
+    def _cmd_stop(self, m: Stop) -> NackCode | None:
+        if not _finite(m.a_max_dps2):
+            return NackCode.NOT_FINITE
+        if not 0.0 <= m.a_max_dps2 <= self.a_max_dps2:
+            return NackCode.OUT_OF_RANGE
+        a_max = m.a_max_dps2 or self.a_max_dps2
+        t_s = self.tick * self.dt_s
+        if self._mode == "plan":
+            planner = self._planners[self._kind]
+            j_max = self._j_max if self._kind == "scurve" else None
+            planner.stop(t_s, a_max=a_max, j_max=j_max)
+            self._target_deg = planner.profile.p1 if planner.profile is not None else 0.0
+        elif self._mode == "step":
+            self._hold_here()  # no planner: hold where the axis is
+            self._target_deg = self.sp_pos_deg
+        return None
+
+    def _cmd_set_gains(self, m: SetGains) -> NackCode | None:
+        if not _finite(m.kp, m.ki, m.kd):
+            return NackCode.NOT_FINITE
+        loop = Loop(m.loop)
+        kp_name, ki_name = _LOOP_GAINS[loop]
+        if m.kp < 0.0 or m.ki < 0.0 or m.kd != 0.0 or (ki_name is None and m.ki != 0.0):
+            return NackCode.OUT_OF_RANGE  # no D terms, no position integrator
+        new = {kp_name: float(m.kp)}
+        if ki_name is not None:
+            new[ki_name] = float(m.ki)
+        trial = {k: _first(v) for k, v in self.law.gains.items()}
+        trial.update(new)
+        if unstable_reason(self.params, trial) is not None:
+            return NackCode.UNSTABLE_GAINS
+        self.law.set_gains(**new)
+        return None
+
+    def _cmd_set_limits(self, m: SetLimits) -> NackCode | None:
+        values = (m.v_max_dps, m.a_max_dps2, m.current_limit_a, m.following_error_deg)
+        if not _finite(*values):
+            return NackCode.NOT_FINITE
+        s = self.params.safety
+        if not (
+            0.0 < m.v_max_dps < s.over_speed_dps
+            and 0.0 < m.a_max_dps2
+            and 0.0 < m.current_limit_a < s.over_current_a
+            and 0.0 < m.following_error_deg
+        ):
+            return NackCode.OUT_OF_RANGE
+        self.v_max_dps, self.a_max_dps2 = float(m.v_max_dps), float(m.a_max_dps2)
+        self.current_limit_a = float(m.current_limit_a)
+        self.following_error_deg = float(m.following_error_deg)
+        if self._mode != "step":
+            self._v_clamp_dps = self.v_max_dps
+        return None
+
+    def _cmd_clear_fault(self, m: ClearFault) -> NackCode | None:
+        if (self._fault != 0).any():
+            self._fault[:] = 0
+            self._fault_s = 0
+            self._oc_ticks[:] = 0
+            self._disable()
+        return None
+
+    def _cmd_set_enable(self, m: SetEnable) -> NackCode | None:
+        if m.enable:
+            if (self._fault != 0).all():
+                return NackCode.FAULT_ACTIVE
+            self._enable()
+        else:
+            self._disable()
+        return None
+
+    def _cmd_set_telemetry(self, m: SetTelemetry) -> NackCode | None:
+        if not 0 <= m.decimation <= 65535:
+            return NackCode.OUT_OF_RANGE
+        self._set_decimation(m.decimation)
+        return None
+
+    def _set_decimation(self, requested: int) -> None:
+        self._requested_decimation = requested
+        used = 0 if requested == 0 else max(requested, self._auto_decimation)
+        self.counters["telemetry_decimation"] = used
+
+    # ------------------------------------------------------------------ transmit
+    def _transmit(self, tx_free: int) -> bytes:
+        out = b""
+        free = tx_free
+        replies = self._replies
+        while replies:
+            data = frame.encode(replies[0], self._seq)
+            if len(data) > free:
+                break  # stays queued for the next tick
+            replies.popleft()
+            out += data
+            free -= len(data)
+            self._seq = (self._seq + 1) & 0xFF
+            self.counters["tx_frames"] += 1
+        dec = self.counters["telemetry_decimation"]
+        if dec and (self.tick - 1) % dec == 0:
+            if frame.TELEMETRY_FRAME_BYTES <= free:
+                out += frame.encode(self._telemetry(), self._seq)
+                self._seq = (self._seq + 1) & 0xFF
+                self.counters["tx_frames"] += 1
+            else:
+                self.counters["tx_telemetry_dropped"] += 1
+        self.counters["tx_bytes"] += len(out)
+        return out
+
+    def _telemetry(self) -> Telemetry:
+        law = self.law
+        if self._array_law:
+            pos, vel = float(law.pos_deg[0]), float(law.vel_dps[0])
+            cur, duty = float(law.current_meas_a[0]), float(law.duty[0])
+        else:
+            pos, vel, cur, duty = law.pos_deg, law.vel_dps, law.current_meas_a, law.duty
+        return Telemetry(
+            tick=self.tick - 1, sp_pos_deg=self.sp_pos_deg, sp_vel_dps=self.sp_vel_dps,
+            pos_deg=pos, vel_dps=vel, current_a=cur, duty=duty,
+            state=State(self._state0()), fault=Fault(int(self._fault[0])),
+        )  # fmt: skip
+
+
+def _first(x: Any) -> float:
+    return float(np.asarray(x).reshape(-1)[0])

@@ -1,0 +1,409 @@
+"""The firmware's configuration: one frozen dataclass per TOML table of the bench file.
+
+``TABLES`` maps each TOML table path to its dataclass so that the generic loader in
+``sim/config.py`` can build them; :class:`FirmwareParams` bundles them. Every dataclass checks
+its own fields in ``__post_init__`` and raises ``ValueError("key = value: reason")``.
+
+Gains (the fields of the ``controller.*`` tables) may be floats or numpy arrays of shape
+``(N,)`` (one value per batch member, for the offline tuner); a list is turned into an array.
+
+The default gains are derived from the *firmware's* nominal model of the plant
+(:data:`NOMINAL`), as a firmware engineer would derive them from the motor's data sheet; the
+derivation is in ``docs/model.md`` (section "Firmware") and in :func:`default_gains`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from firmware_model.units import GEAR_RATIO, MOTOR_RAD_S_PER_AXIS_DPS, TOTAL_RATIO
+
+__all__ = [
+    "NOMINAL",
+    "CurrentLoopGains",
+    "EstimatorParams",
+    "FirmwareParams",
+    "LimitsParams",
+    "PositionLoopGains",
+    "SafetyParams",
+    "ServoParams",
+    "TABLES",
+    "TelemetryParams",
+    "VelocityLoopGains",
+    "default_gains",
+]
+
+Gain = float | npt.NDArray[np.float64]
+
+#: The firmware's nominal plant model (motor data sheet and bench drawing; assumed values,
+#: agreed with the plant model in ``sim/``). Used only to derive default gains and
+#: feed-forward terms, and by the stability check of ``SetGains``.
+NOMINAL: dict[str, float] = {
+    "supply_v": 24.0,
+    "resistance_ohm": 1.2,
+    "inductance_h": 0.6e-3,
+    "kt_nm_per_a": 0.0145,
+    # Rotor + magnet + gearbox input, plus the platter (0.08 kg*m^2) reflected through 400:1
+    # at 80 % gearbox efficiency: 1.2e-5 + 0.08 / 400**2 / 0.8 = 1.2625e-5.
+    "inertia_kgm2": 1.2e-5 + 0.08 / TOTAL_RATIO**2 / 0.8,
+    "tick_hz": 500.0,
+}
+
+
+def default_gains() -> dict[str, float]:
+    """The default gains, derived from :data:`NOMINAL` (see docs/model.md, "Firmware").
+
+    * Current loop (in volts per ampere): bandwidth ``bw`` limited by the 500 Hz loop with
+      one tick of compute delay to ``bw * Ts = 0.5`` (250 rad/s); ``Kp = bw * L``,
+      ``Ki = Kp * R / L = bw * R``. Resistive and back-EMF feed-forward do the bulk of the
+      work; the PI corrects the model error.
+    * Velocity loop (symmetric optimum, a = 2) around the sum of the small lags
+      ``T_sigma`` = compute delay + current loop + ZOH + estimator ~ 7.3 ms:
+      ``Kp = J / (2 Kt T_sigma)`` [A per motor rad/s], ``Ti = 4 T_sigma``.
+    * Position loop: P at a quarter of the velocity crossover ``1 / (2 T_sigma)``.
+    """
+    ts_s = 1.0 / NOMINAL["tick_hz"]
+    bw_current_rad_s = 0.5 / ts_s
+    kp_v_per_a = bw_current_rad_s * NOMINAL["inductance_h"]
+    ki_v_per_as = kp_v_per_a * NOMINAL["resistance_ohm"] / NOMINAL["inductance_h"]
+    estimator_bw_rad_s = 300.0
+    t_sigma_s = 1.5 * ts_s + 0.5 * ts_s + 1.0 / estimator_bw_rad_s + 1.0 * ts_s
+    kp_a_per_motor_rad_s = NOMINAL["inertia_kgm2"] / (NOMINAL["kt_nm_per_a"] * 2.0 * t_sigma_s)
+    kp_a_per_dps = kp_a_per_motor_rad_s * MOTOR_RAD_S_PER_AXIS_DPS
+    ki_a_per_deg = kp_a_per_dps / (4.0 * t_sigma_s)
+    kp_pos_per_s = 1.0 / (2.0 * t_sigma_s) / 4.0
+    return {
+        "current.kp_v_per_a": kp_v_per_a,
+        "current.ki_v_per_as": ki_v_per_as,
+        "current.back_emf_v_per_dps": NOMINAL["kt_nm_per_a"] * MOTOR_RAD_S_PER_AXIS_DPS,
+        "velocity.kp_a_per_dps": kp_a_per_dps,
+        "velocity.ki_a_per_deg": ki_a_per_deg,
+        "velocity.acc_ff_a_per_dps2": NOMINAL["inertia_kgm2"]
+        * MOTOR_RAD_S_PER_AXIS_DPS
+        / NOMINAL["kt_nm_per_a"],
+        "position.kp_per_s": kp_pos_per_s,
+        "estimator.bandwidth_rad_s": estimator_bw_rad_s,
+    }
+
+
+_DEFAULTS = default_gains()
+
+
+def _fail(key: str, value: Any, reason: str) -> None:
+    raise ValueError(f"{key} = {value!r}: {reason}")
+
+
+def _number(key: str, value: Any, *, lo: float = -math.inf, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        _fail(key, value, "must be a number")
+    if not math.isfinite(value):
+        _fail(key, value, "must be finite")
+    if not lo <= value <= hi:
+        _fail(key, value, f"must be in [{lo}, {hi}]")
+    return float(value)
+
+
+def _positive(key: str, value: Any) -> float:
+    v = _number(key, value)
+    if not v > 0.0:
+        _fail(key, value, "must be > 0")
+    return v
+
+
+def _integer(key: str, value: Any, *, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        _fail(key, value, "must be an integer")
+    if not lo <= value <= hi:
+        _fail(key, value, f"must be in [{lo}, {hi}]")
+    return int(value)
+
+
+def _gain(key: str, value: Any) -> Gain:
+    """A non-negative finite gain: a float or an ``(N,)`` float array (batch)."""
+    if isinstance(value, list | tuple | np.ndarray):
+        arr = np.array(value, dtype=float)
+        if arr.ndim != 1 or arr.size == 0:
+            _fail(key, value, "a gain array must have shape (N,) with N >= 1")
+        if not np.all(np.isfinite(arr)):
+            _fail(key, value, "must be finite")
+        if np.any(arr < 0.0):
+            _fail(key, value, "must be >= 0")
+        arr.setflags(write=False)
+        return arr
+    return _number(key, value, lo=0.0)
+
+
+class _Checked:
+    """Mixin: run each field's checker (named in the field metadata) after init."""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            check = f.metadata.get("check")
+            if check is not None:
+                object.__setattr__(self, f.name, check(f.name, getattr(self, f.name)))
+        self._check_relations()
+
+    def _check_relations(self) -> None:
+        pass
+
+
+def _f(default: Any, check: Any) -> Any:
+    return field(default=default, metadata={"check": check})
+
+
+def _rng(lo: float, hi: float) -> Any:
+    return lambda k, v: _number(k, v, lo=lo, hi=hi)
+
+
+def _irng(lo: int, hi: int) -> Any:
+    return lambda k, v: _integer(k, v, lo=lo, hi=hi)
+
+
+def _choice(*options: str) -> Any:
+    def check(k: str, v: Any) -> str:
+        if v not in options:
+            _fail(k, v, f"must be one of {options}")
+        return str(v)
+
+    return check
+
+
+def _boolean(k: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        _fail(k, v, "must be true or false")
+    return bool(v)
+
+
+@dataclass(frozen=True)
+class ServoParams(_Checked):
+    """``[servo]``: rates, arithmetic and power-on behaviour of the STM32 firmware.
+
+    Attributes:
+        tick_hz: servo (position and velocity loop) rate; seed 000: 500 Hz.
+        current_loop_multiple: current-loop runs per servo tick (the paper: 1).
+        compute_delay_ticks: current-loop periods between the ADC sample and the PWM update
+            that uses it (1: the duty computed now is loaded at the next timer update).
+        arithmetic: ``"float"`` (reference) or ``"fixed"`` (int32 Q-format, as on the
+            FPU-less STM32F103; see ``firmware_model/fixedpoint.py``).
+        start_enabled: power on with the bridge enabled, holding the position it wakes up
+            at (handy for scripted runs; a real bench would wait for ``SetEnable``).
+    """
+
+    tick_hz: float = _f(500.0, _rng(50.0, 20_000.0))
+    current_loop_multiple: int = _f(1, _irng(1, 40))
+    compute_delay_ticks: int = _f(1, _irng(0, 4))
+    arithmetic: str = _f("float", _choice("float", "fixed"))
+    start_enabled: bool = _f(True, _boolean)
+
+    @property
+    def dt_s(self) -> float:
+        return 1.0 / self.tick_hz
+
+
+@dataclass(frozen=True)
+class CurrentLoopGains(_Checked):
+    """``[controller.current]``: current PI (volts out), feed-forward, PWM and current sense.
+
+    The loop output is a voltage: ``R * i_ref + back_emf * vel + Kp e + Ki int(e)``; the duty
+    is that voltage over ``supply_v``, clamped to ``duty_limit`` and quantised to
+    ``pwm_arr`` timer steps. The sensed current is ``adc / 2^adc_bits * adc_vref_v /
+    sense_resistor_ohm * sense_ratio`` (BTN7971 IS pin, high side only), signed by the duty.
+    """
+
+    kp_v_per_a: Gain = _f(_DEFAULTS["current.kp_v_per_a"], _gain)
+    ki_v_per_as: Gain = _f(_DEFAULTS["current.ki_v_per_as"], _gain)
+    resistance_ohm: Gain = _f(NOMINAL["resistance_ohm"], _gain)
+    back_emf_v_per_dps: Gain = _f(_DEFAULTS["current.back_emf_v_per_dps"], _gain)
+    supply_v: float = _f(NOMINAL["supply_v"], _rng(1.0, 60.0))
+    duty_limit: float = _f(1.0, _rng(0.05, 1.0))
+    pwm_arr: int = _f(3600, _irng(10, 65535))
+    sense_ratio: float = _f(8500.0, _rng(100.0, 1e6))
+    sense_resistor_ohm: float = _f(1000.0, _rng(1.0, 1e6))
+    adc_vref_v: float = _f(3.3, _rng(0.5, 5.5))
+    adc_bits: int = _f(12, _irng(8, 16))
+
+    @property
+    def a_per_adc(self) -> float:
+        """Amperes per ADC count of the IS-pin reading (6.85 mA with the defaults)."""
+        full_scale = float(1 << self.adc_bits)
+        return self.adc_vref_v / full_scale / self.sense_resistor_ohm * self.sense_ratio
+
+
+@dataclass(frozen=True)
+class VelocityLoopGains(_Checked):
+    """``[controller.velocity]``: velocity PI (amperes out, axis deg/s in) + inertia
+    feed-forward ``acc_ff_a_per_dps2 * sp_acc_dps2``."""
+
+    kp_a_per_dps: Gain = _f(_DEFAULTS["velocity.kp_a_per_dps"], _gain)
+    ki_a_per_deg: Gain = _f(_DEFAULTS["velocity.ki_a_per_deg"], _gain)
+    acc_ff_a_per_dps2: Gain = _f(_DEFAULTS["velocity.acc_ff_a_per_dps2"], _gain)
+
+
+@dataclass(frozen=True)
+class PositionLoopGains(_Checked):
+    """``[controller.position]``: position P (axis deg/s per deg) + velocity feed-forward
+    (``vel_ff`` = 1 passes the planner's velocity through)."""
+
+    kp_per_s: Gain = _f(_DEFAULTS["position.kp_per_s"], _gain)
+    vel_ff: Gain = _f(1.0, _gain)
+
+
+@dataclass(frozen=True)
+class EstimatorParams(_Checked):
+    """``[estimator]``: velocity observer (an alpha-beta tracking loop, i.e. a type-2 PLL on
+    the unwrapped encoder count) with both poles at ``exp(-bandwidth_rad_s * dt_s)``."""
+
+    bandwidth_rad_s: float = _f(_DEFAULTS["estimator.bandwidth_rad_s"], _rng(1.0, 5000.0))
+
+    def alpha_beta(self, dt_s: float) -> tuple[float, float]:
+        """Observer gains (alpha on position, beta on velocity per tick), critically damped."""
+        r = math.exp(-self.bandwidth_rad_s * dt_s)
+        return 1.0 - r * r, (1.0 - r) ** 2
+
+
+@dataclass(frozen=True)
+class LimitsParams(_Checked):
+    """``[limits]``: what a ``Move`` may ask for and the following-error trip (all axis).
+
+    ``v_max_dps`` and ``a_max_dps2`` are the largest values a ``Move`` may carry (and the
+    velocity clamp of the position loop); ``Stop`` with ``a_max_dps2 = 0`` uses
+    ``a_max_dps2``. ``in_position_deg`` ends a ``STEP`` move (no planner to say so).
+    """
+
+    v_max_dps: float = _f(1000.0, _rng(1.0, 1e5))
+    a_max_dps2: float = _f(2000.0, _rng(1.0, 1e7))
+    current_limit_a: float = _f(5.0, _rng(0.01, 50.0))
+    following_error_deg: float = _f(30.0, _rng(1e-3, 1e6))
+    travel_min_deg: float = _f(-1e5, _rng(-1e6, 1e6))
+    travel_max_deg: float = _f(1e5, _rng(-1e6, 1e6))
+    in_position_deg: float = _f(0.5, _rng(1e-4, 1e3))
+
+    def _check_relations(self) -> None:
+        if not self.travel_min_deg < self.travel_max_deg:
+            _fail("travel_max_deg", self.travel_max_deg, "must be > travel_min_deg")
+
+
+@dataclass(frozen=True)
+class SafetyParams(_Checked):
+    """``[safety]``: trip thresholds. Each trip latches a ``Fault``, disables the bridge and
+    sends a ``FaultReport``; only ``ClearFault`` clears it.
+
+    Attributes:
+        over_current_a: |sensed current| above this for ``over_current_ticks`` samples.
+        over_speed_dps: |estimated axis velocity| above this.
+        encoder_jump_counts: |reading - predicted reading| above this in one tick
+            (a physically impossible jump: at 5 A the motor moves ~60 counts off prediction).
+        encoder_stuck_ticks: the raw reading unchanged this many ticks while the position
+            loop asks for more than ``encoder_stuck_min_vel_dps``.
+        watchdog_s: no valid frame from the PC for this long while enabled (0 = off).
+    """
+
+    over_current_a: float = _f(7.5, _rng(0.01, 60.0))
+    over_current_ticks: int = _f(2, _irng(1, 1000))
+    over_speed_dps: float = _f(1100.0, _rng(1.0, 1e5))
+    encoder_jump_counts: int = _f(1024, _irng(16, 8191))
+    encoder_stuck_ticks: int = _f(100, _irng(2, 100_000))
+    encoder_stuck_min_vel_dps: float = _f(20.0, _rng(0.01, 1e5))
+    watchdog_s: float = _f(0.0, _rng(0.0, 3600.0))
+
+
+@dataclass(frozen=True)
+class TelemetryParams(_Checked):
+    """``[telemetry]``: the board's UART and its telemetry rate.
+
+    ``decimation`` is the requested rate (1 = every tick, 0 = off); the firmware raises it
+    automatically when a telemetry frame per tick does not fit ``baud`` (8N1, 10 bits per
+    byte) with ``reply_reserve`` of the link kept free for replies.
+    """
+
+    decimation: int = _f(1, _irng(0, 65535))
+    baud: int = _f(460_800, _irng(1200, 12_000_000))
+    reply_reserve: float = _f(0.2, _rng(0.0, 0.9))
+    reply_queue_frames: int = _f(32, _irng(1, 1024))
+
+
+@dataclass(frozen=True)
+class FirmwareParams:
+    """Every firmware table; built by ``sim/config.py`` or with defaults for tests."""
+
+    servo: ServoParams = field(default_factory=ServoParams)
+    current: CurrentLoopGains = field(default_factory=CurrentLoopGains)
+    velocity: VelocityLoopGains = field(default_factory=VelocityLoopGains)
+    position: PositionLoopGains = field(default_factory=PositionLoopGains)
+    estimator: EstimatorParams = field(default_factory=EstimatorParams)
+    limits: LimitsParams = field(default_factory=LimitsParams)
+    safety: SafetyParams = field(default_factory=SafetyParams)
+    telemetry: TelemetryParams = field(default_factory=TelemetryParams)
+
+    def __post_init__(self) -> None:
+        if not self.limits.current_limit_a < self.safety.over_current_a:
+            _fail(
+                "current_limit_a",
+                self.limits.current_limit_a,
+                f"must be below safety.over_current_a = {self.safety.over_current_a}",
+            )
+        if not self.limits.v_max_dps < self.safety.over_speed_dps:
+            _fail(
+                "v_max_dps",
+                self.limits.v_max_dps,
+                f"must be below safety.over_speed_dps = {self.safety.over_speed_dps}",
+            )
+        # An encoder can only be unwrapped if the motor turns < half a revolution per tick
+        # off the prediction; the over-speed trip must sit below one revolution per tick.
+        rev_per_tick_dps = 360.0 / GEAR_RATIO * self.servo.tick_hz
+        if not self.safety.over_speed_dps < rev_per_tick_dps:
+            _fail(
+                "over_speed_dps",
+                self.safety.over_speed_dps,
+                f"must be below one motor revolution per tick ({rev_per_tick_dps} dps)",
+            )
+
+    @classmethod
+    def from_tables(cls, tables: dict[str, Any]) -> FirmwareParams:
+        """Build from ``{table path: dataclass instance}`` (missing tables get defaults)."""
+        kwargs = {}
+        for path, name in _FIELD_OF_TABLE.items():
+            if path in tables:
+                kwargs[name] = tables[path]
+        return cls(**kwargs)
+
+    def batch_size(self) -> int | None:
+        """N if any gain is an ``(N,)`` array (all arrays must agree), else None."""
+        sizes = set()
+        for part in (self.current, self.velocity, self.position):
+            for f in fields(part):
+                value = getattr(part, f.name)
+                if isinstance(value, np.ndarray):
+                    sizes.add(value.shape[0])
+        if len(sizes) > 1:
+            _fail("gains", sorted(sizes), "gain arrays must all have the same length N")
+        return sizes.pop() if sizes else None
+
+
+#: TOML table path -> dataclass (the generic loader's map).
+TABLES: dict[str, type] = {
+    "servo": ServoParams,
+    "controller.current": CurrentLoopGains,
+    "controller.velocity": VelocityLoopGains,
+    "controller.position": PositionLoopGains,
+    "estimator": EstimatorParams,
+    "limits": LimitsParams,
+    "safety": SafetyParams,
+    "telemetry": TelemetryParams,
+}
+
+_FIELD_OF_TABLE: dict[str, str] = {
+    "servo": "servo",
+    "controller.current": "current",
+    "controller.velocity": "velocity",
+    "controller.position": "position",
+    "estimator": "estimator",
+    "limits": "limits",
+    "safety": "safety",
+    "telemetry": "telemetry",
+}

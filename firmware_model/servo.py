@@ -1,0 +1,422 @@
+"""The control law of one servo tick: encoder unwrap, velocity observer, position P ->
+velocity PI -> current PI -> PWM duty, with clamps and anti-windup.
+
+Two interchangeable implementations with the same methods and attributes:
+
+* :class:`ScalarLaw`: one axis in plain Python floats (the fast path for ``batch=None``).
+* :class:`ArrayLaw`: ``N`` axes in lock-step on numpy arrays of shape ``(N,)``, in float64
+  or in saturating int32 Q-format (``fixed=True``; see ``firmware_model/fixedpoint.py``).
+  ``ArrayLaw(fixed=False)`` with N = 1 computes exactly what ``ScalarLaw`` computes (tested).
+
+The order of one servo tick (seed 000 Fig. 5), with the firmware's shell around it:
+
+1. :meth:`estimate`: unwrap the 14-bit reading around the observer's *prediction* (so a motor
+   turning up to half a revolution per tick off the prediction unwraps correctly), then an
+   alpha-beta observer (a type-2 tracking loop, the digital PLL of a resolver-to-digital
+   converter) gives the velocity; the plain difference is kept as ``vel_raw_dps``.
+2. :meth:`servo`: position error -> ``v_ref = Kp_pos e + vel_ff sp_vel`` clamped to the velocity
+   limit -> ``i_ref = Kp_vel (v_ref - vel) + I + acc_ff sp_acc`` clamped to the current limit,
+   integrating only when that does not push further into the clamp (conditional integration).
+3. :meth:`current` (``current_loop_multiple`` times per tick): the sensed current is the
+   BTN7971 IS reading (high side only) signed by the duty being applied;
+   ``u = R i_ref + k_emf vel + Kp e + I`` volts, clamped to ``duty_limit * supply_v``
+   with the same anti-windup, divided by the supply and quantised to the timer's ARR steps.
+   The duty computed now is returned ``compute_delay_ticks`` calls later (the timer loads
+   the compare register at its next update event).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from firmware_model import fixedpoint as fx
+from firmware_model.params import FirmwareParams
+from firmware_model.units import AXIS_DEG_PER_COUNT, ENCODER_COUNTS_PER_REV
+
+__all__ = ["ArrayLaw", "GAIN_NAMES", "ScalarLaw"]
+
+_REV = ENCODER_COUNTS_PER_REV
+_HALF_REV = _REV // 2
+# Q16.16 raw units of axis degrees per encoder count (exact: 18).
+_Q_DEG_PER_COUNT = int(round(AXIS_DEG_PER_COUNT * (1 << fx.SIG_FRAC_BITS)))
+
+#: The run-time gains (name -> (params table attribute, field)).
+GAIN_NAMES: dict[str, tuple[str, str]] = {
+    "kp_i": ("current", "kp_v_per_a"),
+    "ki_i": ("current", "ki_v_per_as"),
+    "r_ff": ("current", "resistance_ohm"),
+    "emf_ff": ("current", "back_emf_v_per_dps"),
+    "kp_v": ("velocity", "kp_a_per_dps"),
+    "ki_v": ("velocity", "ki_a_per_deg"),
+    "acc_ff": ("velocity", "acc_ff_a_per_dps2"),
+    "kp_p": ("position", "kp_per_s"),
+    "vel_ff": ("position", "vel_ff"),
+}
+
+
+class _Common:
+    """Constants both implementations derive from the parameters."""
+
+    def _init_common(self, params: FirmwareParams) -> None:
+        servo, cur = params.servo, params.current
+        self.dt_s = servo.dt_s
+        self.dt_current_s = servo.dt_s / servo.current_loop_multiple
+        self.delay = servo.compute_delay_ticks
+        self.alpha, self.beta = params.estimator.alpha_beta(servo.dt_s)
+        self.dps_per_count_tick = AXIS_DEG_PER_COUNT * servo.tick_hz
+        self.supply_v = cur.supply_v
+        self.duty_limit = cur.duty_limit
+        self.arr = cur.pwm_arr
+        self.a_per_adc = cur.a_per_adc
+        self.gains: dict[str, Any] = {
+            name: getattr(getattr(params, table), key) for name, (table, key) in GAIN_NAMES.items()
+        }
+
+
+class ScalarLaw(_Common):
+    """One axis in Python floats. Attributes after each call (axis units): ``pos_deg``,
+    ``vel_dps``, ``vel_raw_dps``, ``innovation_counts`` (reading minus prediction),
+    ``stuck_ticks`` (ticks the raw reading has not changed), ``vel_ref_dps``,
+    ``current_ref_a``, ``current_meas_a``, ``duty`` (the duty being applied)."""
+
+    def __init__(self, params: FirmwareParams) -> None:
+        self._init_common(params)
+        for name, value in self.gains.items():
+            if isinstance(value, np.ndarray):
+                raise ValueError(f"{name} = {value!r}: array gains need batch=N")
+        self._derive()
+        self.reset(0)
+
+    def _derive(self) -> None:
+        g = self.gains
+        self._kp_p, self._vff = float(g["kp_p"]), float(g["vel_ff"])
+        self._kp_v, self._ki_v_dt = float(g["kp_v"]), float(g["ki_v"]) * self.dt_s
+        self._acc_ff = float(g["acc_ff"])
+        self._kp_i, self._ki_i_dt = float(g["kp_i"]), float(g["ki_i"]) * self.dt_current_s
+        self._r_ff, self._emf_ff = float(g["r_ff"]), float(g["emf_ff"])
+
+    def set_gains(self, **gains: float) -> None:
+        """Replace some of the run-time gains (names of :data:`GAIN_NAMES`)."""
+        self.gains.update(gains)
+        self._derive()
+
+    def reset(self, raw_counts: int) -> None:
+        """Power-on: the multi-turn count starts at the raw reading, everything at rest."""
+        self.count = int(raw_counts)
+        self._raw_prev = int(raw_counts)
+        self._ep = 0.0
+        self._v = 0.0
+        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
+        self.vel_dps = 0.0
+        self.vel_raw_dps = 0.0
+        self.innovation_counts = 0
+        self.stuck_ticks = 0
+        self.reset_control()
+
+    def reset_control(self) -> None:
+        """Zero the integrators, the references and the PWM pipeline (bridge off)."""
+        self._i_v = 0.0
+        self._i_i = 0.0
+        self.vel_ref_dps = 0.0
+        self.current_ref_a = 0.0
+        self.current_meas_a = 0.0
+        self.duty = 0.0
+        self._pipe = [0.0] * self.delay
+        self._pipe_i = 0
+
+    def estimate(self, raw_counts: int) -> None:
+        """Unwrap the reading and update the velocity observer."""
+        raw = int(raw_counts)
+        pred = self._ep + self._v
+        pred_int = math.floor(pred + 0.5)
+        delta = (raw - self.count - pred_int) % _REV
+        if delta >= _HALF_REV:
+            delta -= _REV
+        d = pred_int + delta
+        err = d - pred
+        self._ep = (self.alpha - 1.0) * err
+        self._v += self.beta * err
+        self.count += d
+        self.innovation_counts = delta
+        self.stuck_ticks = self.stuck_ticks + 1 if raw == self._raw_prev else 0
+        self._raw_prev = raw
+        k = self.dps_per_count_tick
+        self.vel_raw_dps = d * k
+        self.vel_dps = self._v * k
+        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
+
+    def servo(
+        self,
+        sp_pos_deg: float,
+        sp_vel_dps: float,
+        sp_acc_dps2: float,
+        v_clamp_dps: float,
+        i_limit_a: float,
+    ) -> None:
+        """Position P and velocity PI: sets ``vel_ref_dps`` and ``current_ref_a``."""
+        vr = self._kp_p * (sp_pos_deg - self.pos_deg) + self._vff * sp_vel_dps
+        if vr > v_clamp_dps:
+            vr = v_clamp_dps
+        elif vr < -v_clamp_dps:
+            vr = -v_clamp_dps
+        ev = vr - self.vel_dps
+        u = self._kp_v * ev + self._i_v + self._acc_ff * sp_acc_dps2
+        i_v = self._i_v
+        if u > i_limit_a:
+            u = i_limit_a
+            if ev < 0.0:
+                i_v += self._ki_v_dt * ev
+        elif u < -i_limit_a:
+            u = -i_limit_a
+            if ev > 0.0:
+                i_v += self._ki_v_dt * ev
+        else:
+            i_v += self._ki_v_dt * ev
+        self._i_v = min(max(i_v, -i_limit_a), i_limit_a)
+        self.vel_ref_dps = vr
+        self.current_ref_a = u
+
+    def current(self, adc_counts: int, enabled: bool) -> float:
+        """One current-loop period; returns the duty the bridge applies next (ARR steps)."""
+        applied = self.duty
+        sensed = adc_counts * self.a_per_adc
+        i_meas = sensed if applied > 0.0 else (-sensed if applied < 0.0 else 0.0)
+        self.current_meas_a = i_meas
+        if not enabled:
+            self.reset_control()
+            self.current_meas_a = i_meas
+            return 0.0
+        i_ref = self.current_ref_a
+        e = i_ref - i_meas
+        u = self._kp_i * e + self._i_i + self._r_ff * i_ref + self._emf_ff * self.vel_dps
+        u_lim = self.duty_limit * self.supply_v
+        i_i = self._i_i
+        if u > u_lim:
+            u = u_lim
+            if e < 0.0:
+                i_i += self._ki_i_dt * e
+        elif u < -u_lim:
+            u = -u_lim
+            if e > 0.0:
+                i_i += self._ki_i_dt * e
+        else:
+            i_i += self._ki_i_dt * e
+        self._i_i = min(max(i_i, -u_lim), u_lim)
+        duty = round(u / self.supply_v * self.arr) / self.arr
+        if self.delay:
+            out = self._pipe[self._pipe_i]
+            self._pipe[self._pipe_i] = duty
+            self._pipe_i = (self._pipe_i + 1) % self.delay
+        else:
+            out = duty
+        self.duty = out
+        return out
+
+
+class ArrayLaw(_Common):
+    """``n`` axes in lock-step; float64 or saturating int32 Q16.16/Q8.24 (``fixed``).
+
+    The same attributes as :class:`ScalarLaw`, as float arrays of shape ``(n,)`` (converted
+    from Q-format where ``fixed``), plus ``count`` (int64 multi-turn count).
+    """
+
+    def __init__(self, params: FirmwareParams, n: int, *, fixed: bool = False) -> None:
+        if n < 1:
+            raise ValueError(f"batch = {n!r}: must be >= 1")
+        self._init_common(params)
+        self.n = n
+        self.fixed = fixed
+        for name, value in self.gains.items():
+            if isinstance(value, np.ndarray) and value.shape != (n,):
+                raise ValueError(f"{name}: gain array shape {value.shape} != ({n},)")
+        self._derive()
+        self.reset(np.zeros(n, dtype=np.int64))
+
+    # -- arithmetic: float64 or saturating Q-format
+    def _gain(self, x: Any) -> npt.NDArray[Any]:
+        arr = np.broadcast_to(np.asarray(x, dtype=float), (self.n,)).copy()
+        return fx.to_gain(arr) if self.fixed else arr
+
+    def _sig(self, x: Any) -> Any:
+        """A shared float (or array) input as a signal of the arithmetic in use."""
+        return fx.to_sig(x) if self.fixed else x
+
+    def _mul(self, s: Any, g: Any) -> Any:
+        return fx.mul_gain(s, g) if self.fixed else s * g
+
+    def _sat(self, x: Any) -> Any:
+        return fx.sat32(x) if self.fixed else x
+
+    def _out(self, x: Any) -> npt.NDArray[np.float64]:
+        return fx.from_sig(x) if self.fixed else x
+
+    def _derive(self) -> None:
+        g = self.gains
+        self._kp_p, self._vff = self._gain(g["kp_p"]), self._gain(g["vel_ff"])
+        self._kp_v = self._gain(g["kp_v"])
+        self._ki_v_dt = self._gain(np.asarray(g["ki_v"]) * self.dt_s)
+        self._acc_ff = self._gain(g["acc_ff"])
+        self._kp_i = self._gain(g["kp_i"])
+        self._ki_i_dt = self._gain(np.asarray(g["ki_i"]) * self.dt_current_s)
+        self._r_ff, self._emf_ff = self._gain(g["r_ff"]), self._gain(g["emf_ff"])
+        self._alpha_m1 = self._gain(self.alpha - 1.0)
+        self._beta = self._gain(self.beta)
+        self._k_vel = self._gain(self.dps_per_count_tick)
+        self._inv_supply = self._gain(1.0 / self.supply_v)
+        # Amperes per ADC count in Q8.24, applied as (adc * k + 2^7) >> 8 -> Q16.16.
+        self._a_per_adc_q = int(round(self.a_per_adc * (1 << fx.GAIN_FRAC_BITS)))
+
+    def set_gains(self, **gains: Any) -> None:
+        """Replace some of the run-time gains (names of :data:`GAIN_NAMES`)."""
+        self.gains.update(gains)
+        self._derive()
+
+    def reset(self, raw_counts: npt.ArrayLike) -> None:
+        raw = np.broadcast_to(np.asarray(raw_counts, dtype=np.int64), (self.n,)).copy()
+        self.count = raw.copy()
+        self._raw_prev = raw
+        zero = np.zeros(self.n, dtype=np.int64 if self.fixed else float)
+        self._ep = zero.copy()
+        self._v = zero.copy()
+        self._vel = zero.copy()
+        self.vel_raw_dps = np.zeros(self.n)
+        self.innovation_counts = np.zeros(self.n, dtype=np.int64)
+        self.stuck_ticks = np.zeros(self.n, dtype=np.int64)
+        self.reset_control()
+
+    def reset_control(self, mask: npt.NDArray[np.bool_] | None = None) -> None:
+        """Zero integrators, references and PWM pipeline (of the members in ``mask``)."""
+        dtype = np.int64 if self.fixed else float
+        if mask is None:
+            self._i_v = np.zeros(self.n, dtype=dtype)
+            self._i_i = np.zeros(self.n, dtype=dtype)
+            self._vr = np.zeros(self.n, dtype=dtype)
+            self._iref = np.zeros(self.n, dtype=dtype)
+            self._imeas = np.zeros(self.n, dtype=dtype)
+            self._steps = np.zeros(self.n, dtype=np.int64)
+            self._pipe = np.zeros((max(self.delay, 1), self.n), dtype=np.int64)
+            self._pipe_i = 0
+            return
+        for arr in (self._i_v, self._i_i, self._vr, self._iref, self._steps):
+            arr[mask] = 0
+        self._pipe[:, mask] = 0
+
+    # -- the three steps
+    def estimate(self, raw_counts: npt.ArrayLike) -> None:
+        raw = np.asarray(raw_counts, dtype=np.int64)
+        if self.fixed:
+            pred = fx.sat32(self._ep + self._v)
+            pred_int = (pred + (1 << 15)) >> fx.SIG_FRAC_BITS
+        else:
+            pred = self._ep + self._v
+            pred_int = np.floor(pred + 0.5).astype(np.int64)
+        delta = (raw - self.count - pred_int) % _REV
+        delta -= np.where(delta >= _HALF_REV, _REV, 0)
+        d = pred_int + delta
+        if self.fixed:
+            err = fx.sat32((d << fx.SIG_FRAC_BITS) - pred)
+        else:
+            err = d - pred
+        self._ep = self._mul(err, self._alpha_m1)
+        self._v = self._sat(self._v + self._mul(err, self._beta))
+        self.count = self.count + d
+        self.innovation_counts = delta
+        self.stuck_ticks = np.where(raw == self._raw_prev, self.stuck_ticks + 1, 0)
+        self._raw_prev = raw
+        self.vel_raw_dps = d * self.dps_per_count_tick
+        self._vel = self._mul(self._v, self._k_vel)
+
+    def servo(
+        self,
+        sp_pos_deg: float,
+        sp_vel_dps: float,
+        sp_acc_dps2: float,
+        v_clamp_dps: float,
+        i_limit_a: float,
+    ) -> None:
+        if self.fixed:
+            sp_count = int(round(sp_pos_deg / AXIS_DEG_PER_COUNT))
+            e = fx.sat32(fx.sat32(sp_count - self.count) * _Q_DEG_PER_COUNT)
+        else:
+            e = sp_pos_deg - self.count * AXIS_DEG_PER_COUNT
+        vc, il = self._sig(v_clamp_dps), self._sig(i_limit_a)
+        vr = self._sat(self._mul(e, self._kp_p) + self._mul(self._sig(sp_vel_dps), self._vff))
+        vr = np.clip(vr, -vc, vc)
+        ev = self._sat(vr - self._vel)
+        ff = self._mul(self._sig(sp_acc_dps2), self._acc_ff)
+        u = self._sat(self._sat(self._mul(ev, self._kp_v) + self._i_v) + ff)
+        hold = ((u > il) & (ev > 0)) | ((u < -il) & (ev < 0))
+        i_v = np.where(hold, self._i_v, self._sat(self._i_v + self._mul(ev, self._ki_v_dt)))
+        self._i_v = np.clip(i_v, -il, il)
+        self._vr = vr
+        self._iref = np.clip(u, -il, il)
+
+    def current(
+        self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
+    ) -> npt.NDArray[np.float64]:
+        adc = np.asarray(adc_counts, dtype=np.int64)
+        applied = self._steps
+        if self.fixed:
+            sensed = (adc * self._a_per_adc_q + (1 << 7)) >> (fx.GAIN_FRAC_BITS - fx.SIG_FRAC_BITS)
+        else:
+            sensed = adc * self.a_per_adc
+        i_meas = np.where(applied > 0, sensed, np.where(applied < 0, -sensed, 0))
+        i_ref = self._iref
+        e = self._sat(i_ref - i_meas)
+        # Same association as ScalarLaw, so that float results agree bit for bit.
+        u = self._sat(self._mul(e, self._kp_i) + self._i_i)
+        u = self._sat(u + self._mul(i_ref, self._r_ff))
+        u = self._sat(u + self._mul(self._vel, self._emf_ff))
+        ul = self._sig(self.duty_limit * self.supply_v)
+        hold = ((u > ul) & (e > 0)) | ((u < -ul) & (e < 0))
+        i_i = np.where(hold, self._i_i, self._sat(self._i_i + self._mul(e, self._ki_i_dt)))
+        self._i_i = np.clip(i_i, -ul, ul)
+        u = np.clip(u, -ul, ul)
+        if self.fixed:
+            duty_q = self._mul(u, self._inv_supply)
+            steps = (duty_q * self.arr + (1 << 15)) >> fx.SIG_FRAC_BITS
+        else:
+            steps = np.round(u / self.supply_v * self.arr).astype(np.int64)
+        steps = np.where(enabled, steps, 0)
+        if self.delay:
+            out = self._pipe[self._pipe_i].copy()
+            self._pipe[self._pipe_i] = steps
+            self._pipe_i = (self._pipe_i + 1) % self.delay
+        else:
+            out = steps
+        out = np.where(enabled, out, 0)
+        self._imeas = i_meas
+        off = ~np.asarray(enabled, dtype=bool)
+        if off.any():
+            self.reset_control(off)
+        self._steps = out
+        return out / self.arr
+
+    # -- float views of the state (axis units)
+    @property
+    def pos_deg(self) -> npt.NDArray[np.float64]:
+        return self.count * AXIS_DEG_PER_COUNT
+
+    @property
+    def vel_dps(self) -> npt.NDArray[np.float64]:
+        return self._out(self._vel)
+
+    @property
+    def vel_ref_dps(self) -> npt.NDArray[np.float64]:
+        return self._out(self._vr)
+
+    @property
+    def current_ref_a(self) -> npt.NDArray[np.float64]:
+        return self._out(self._iref)
+
+    @property
+    def current_meas_a(self) -> npt.NDArray[np.float64]:
+        return self._out(self._imeas)
+
+    @property
+    def duty(self) -> npt.NDArray[np.float64]:
+        return self._steps / self.arr
