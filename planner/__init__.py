@@ -7,21 +7,26 @@ Unit-free: any consistent units (the firmware uses axis degrees and seconds).
 * :func:`plan_scurve` - jerk-limited 7-segment S-curve from any (v0, a0) (seed 002).
 * :func:`plan_stop`, :func:`plan_scurve_stop` - the shortest stop.
 * :class:`OnlinePlanner` - per-tick setpoints with interrupt-and-replan (seed 000, Fig. 8).
+* :func:`sample_fixed_period` - fixed-period interpolation (seed 002, Tables 1 and 2).
 * :class:`Profile` - what every planner returns: ``duration``, ``at(t)``, ``phases``.
 """
 
 from planner.online import OnlinePlanner
 from planner.profile import Profile
+from planner.sampling import FixedPeriodSamples, sample_fixed_period, trapezoid_from_periods
 from planner.scurve import plan_scurve, plan_scurve_stop, scurve_from_periods, velocity_pulse
 from planner.trapezoid import plan_stop, plan_trapezoid
 
 __all__ = [
+    "FixedPeriodSamples",
     "OnlinePlanner",
     "Profile",
     "plan_scurve",
     "plan_scurve_stop",
     "plan_stop",
     "plan_trapezoid",
+    "sample_fixed_period",
     "scurve_from_periods",
+    "trapezoid_from_periods",
     "velocity_pulse",
 ]

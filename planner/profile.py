@@ -95,6 +95,18 @@ class Profile:
             return self._at_scalar(float(t_arr))
         return self._at_array(t_arr)
 
+    def jerk(self, t: FloatOrArray) -> FloatOrArray:
+        """The piecewise-constant jerk at ``t`` (0 outside ``[0, duration)`` and for a
+        trapezoid, whose acceleration steps are not represented as jerk)."""
+        t_arr = np.asarray(t, dtype=float)
+        if not self.t0:
+            out = np.zeros_like(t_arr)
+        else:
+            t0, _, _, _, j = self._arrays
+            i = np.clip(np.searchsorted(t0, t_arr, side="right") - 1, 0, len(self.t0) - 1)
+            out = np.where((t_arr < 0.0) | (t_arr >= self.duration), 0.0, j[i])
+        return float(out) if out.ndim == 0 else out
+
     def _at_scalar(self, t: float) -> tuple[float, float, float]:
         if t < 0.0:
             return self.p0, self.v0, 0.0
@@ -160,6 +172,7 @@ def build_profile(
     js: list[float] = []
     t, p, v, a = 0.0, p0, v0, a0
     trapezoid = kind == "trapezoid"
+    a_scale = abs(a0)
     for dt, value in segments:
         if not dt > 0.0:
             continue
@@ -167,6 +180,10 @@ def build_profile(
             a, j = value, 0.0
         else:
             j = value
+            # A phase that starts where the planner brought the acceleration to zero must
+            # start at exactly zero: a rounding residue would grow as t^2 over a long cruise.
+            if abs(a) <= 1e-12 * a_scale:
+                a = 0.0
         t0.append(t)
         ps.append(p)
         vs.append(v)
@@ -175,6 +192,7 @@ def build_profile(
         p += dt * (v + dt * (0.5 * a + dt * j / 6.0))
         v += dt * (a + 0.5 * dt * j)
         a += dt * j
+        a_scale = max(a_scale, abs(a))
         t += dt
     if not math.isfinite(t):
         raise ValueError(f"duration = {t!r}: the profile is not finite")

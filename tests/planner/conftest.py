@@ -31,7 +31,7 @@ def check_profile(prof, *, v_max, a_max, j_max=None, v_start_max=None):
     """
     big_t = prof.duration
     assert big_t >= 0.0 and math.isfinite(big_t)
-    p_scale = _scale(prof.p0, prof.p1, v_max * big_t)
+    p_scale = _scale(prof.p0, prof.p1, v_max * big_t, *prof.p)
     v_lim = max(v_max, abs(prof.v0) if v_start_max is None else v_start_max)
     # Start state.
     p, v, _ = prof.at(0.0)
