@@ -29,8 +29,9 @@ __all__ = [
 ]
 
 BITS_PER_BYTE_8N1 = 10
-#: Share of the line telemetry may use; the rest is left for ACKs, replies and fault reports.
-DEFAULT_MAX_UTILISATION = 0.75
+#: Share of the line telemetry may use; the rest is left for ACKs, replies and fault reports
+#: (the firmware's `[telemetry] reply_reserve`, 0.2 by default).
+DEFAULT_MAX_UTILISATION = 0.8
 
 
 def bytes_per_s(baud: int) -> float:

@@ -1,0 +1,67 @@
+"""docs/protocol.md agrees with the code: message layouts, sizes and the bandwidth table."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+import struct
+from pathlib import Path
+
+import pytest
+
+from serial_protocol import frame
+from serial_protocol.uart import bytes_per_s, link_utilisation, telemetry_decimation
+
+DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
+WIRE_TYPES = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "i32": "i", "f32": "f"}
+
+
+def _section(name: str) -> str:
+    match = re.search(rf"^### 0x[0-9A-F]{{2}} `{name}` .*?(?=^### |^## )", DOC, re.M | re.S)
+    assert match, f"no section for {name} in docs/protocol.md"
+    return match.group(0)
+
+
+@pytest.mark.parametrize("cls", list(frame._BY_CLASS), ids=lambda c: c.__name__)
+def test_message_table_matches_codec(cls):
+    codec = frame._BY_CLASS[cls]
+    text = _section(cls.__name__)
+    head = re.match(r"### 0x([0-9A-F]{2}) `\w+` \(payload (\d+), frame (\d+) bytes\)", text)
+    assert head
+    assert int(head.group(1), 16) == codec.msg_type
+    assert int(head.group(2)) == codec.payload.size
+    assert int(head.group(3)) == codec.payload.size + frame.OVERHEAD_BYTES
+    rows = re.findall(r"^\| (\d+) \| (\d+) \| `(\w+)` \| (\w+) \|", text, re.M)
+    names = [f.name for f in dataclasses.fields(cls)]
+    assert [r[2] for r in rows] == names
+    assert "".join(WIRE_TYPES[r[3]] for r in rows) == codec.fmt
+    offset = 0
+    for row in rows:
+        assert int(row[0]) == offset
+        assert int(row[1]) == struct.calcsize("<" + WIRE_TYPES[row[3]])
+        offset += int(row[1])
+    assert offset == codec.payload.size
+
+
+def test_bandwidth_table_matches_code():
+    rows = re.findall(r"^\| (\d{5,7}) \| (.*) \|$", DOC, re.M)
+    bauds = [int(r[0]) for r in rows]
+    assert bauds == [115200, 460800, 921600]
+    n = frame.TELEMETRY_FRAME_BYTES
+    for baud, rest in rows:
+        cells = [c.strip() for c in rest.split("|")]
+        baud = int(baud)
+        d = telemetry_decimation(baud, n, 500)
+        assert cells[0] == f"{bytes_per_s(baud):.0f}"
+        assert cells[1] == f"{n * 500}"
+        assert cells[2] == f"{link_utilisation(baud, n, 500) * 100:.1f} %"
+        assert cells[3] == f"{d}"
+        assert cells[4] == f"{500 / d:.0f}"
+        assert cells[5] == f"{link_utilisation(baud, n, 500, d) * 100:.1f} %"
+        assert cells[6] == f"{n / bytes_per_s(baud) * 1000:.2f}"
+
+
+def test_doc_states_check_values_and_sizes():
+    assert "0x29B1" in DOC and "0xF4" in DOC
+    assert f"The largest frame is {frame.MAX_FRAME_BYTES} bytes" in DOC
+    assert f"One `Telemetry` frame is {frame.TELEMETRY_FRAME_BYTES} bytes" in DOC
