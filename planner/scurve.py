@@ -99,7 +99,7 @@ def _solve_monotone(d: float, lo: float, hi: float, v0: float, a_max: float, j_m
         x_new = x - f / df if step_ok else 0.5 * (lo + hi)
         if not lo < x_new < hi:
             x_new = 0.5 * (lo + hi)
-        if abs(x_new - x) <= 4e-16 * max(abs(x), abs(lo), abs(hi)) or hi - lo <= 0.0:
+        if abs(x_new - x) <= 4e-16 * abs(x_new) or hi - lo <= 4e-16 * abs(hi):
             return x_new
         x = x_new
     return x

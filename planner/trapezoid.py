@@ -63,7 +63,7 @@ def time_optimal_segments(
         ``(segments, braked, sigma, cruise)``: ``segments`` is a list of ``(dt, a)``;
         ``braked`` tells whether a brake phase to v_max comes first; ``sigma`` is +1 if the
         main part accelerates first (peak above both end velocities), -1 if it decelerates
-        first; ``cruise`` tells whether the peak is capped at ``sigma * v_max``.
+        first; ``cruise`` tells whether there is a cruise at ``sigma * v_max``.
     """
     segments: list[tuple[float, float]] = []
     braked = False
@@ -86,7 +86,7 @@ def time_optimal_segments(
     m = max(v, v1) if sigma > 0 else min(v, v1)
     peak_sq = max(sigma * a_max * d + 0.5 * (v * v + v1 * v1), m * m)
     vp = sigma * math.sqrt(peak_sq)
-    cruise = abs(vp) > v_max
+    cruise = abs(vp) >= v_max
     t_cruise = 0.0
     if cruise:
         vp = sigma * v_max
@@ -97,7 +97,7 @@ def time_optimal_segments(
     segments.append((t_up, sigma * a_max))
     segments.append((t_cruise, 0.0))
     segments.append((t_down, -sigma * a_max))
-    return segments, braked, sigma, cruise
+    return segments, braked, sigma, t_cruise > 0.0
 
 
 def plan_trapezoid(

@@ -2,7 +2,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner import OnlinePlanner
@@ -105,6 +105,7 @@ def test_bad_arguments():
         op.reset(math.nan)
 
 
+@settings(settings.get_profile("planner"))
 @given(
     kind=st.sampled_from(["trapezoid", "scurve"]),
     targets=st.lists(st.floats(-5e3, 5e3), min_size=1, max_size=5),

@@ -3,7 +3,7 @@ import random
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from planner import plan_stop, plan_trapezoid
@@ -223,6 +223,7 @@ finite = st.floats(-1e4, 1e4, allow_nan=False)
 positive = st.floats(1e-2, 1e3, allow_nan=False)
 
 
+@settings(settings.get_profile("planner"))
 @given(
     p0=finite,
     dist=finite,
@@ -237,4 +238,6 @@ def test_property_valid_profile(p0, dist, v_max, a_max, v0_frac, v1_frac, check)
     check(prof, v_max=v_max, a_max=a_max)
     # Never slower than going the long way round: a lower bound on the duration.
     dist = (p0 + dist) - p0  # what the planner was actually asked to cover
-    assert prof.duration >= abs(dist) / max(v_max, abs(v0)) * (1 - 1e-12)
+    # Rounding of the peak speed may lose up to ~ulp(v^2)/a of distance (and its time).
+    slack = 4 * math.ulp(max(v_max, abs(v0)) ** 2) / a_max / max(v_max, abs(v0))
+    assert prof.duration >= abs(dist) / max(v_max, abs(v0)) * (1 - 1e-12) - slack
