@@ -72,9 +72,13 @@ __all__ = [
     "DecoderStats",
     "crc8",
     "crc16",
+    "decode_payload",
     "encode",
+    "encode_payload",
     "frame_bytes",
     "frame_raw",
+    "payload_bytes",
+    "payload_size_of_type",
 ]
 
 SYNC = b"\xa5\x5a"
@@ -403,6 +407,48 @@ def encode(msg: Message, seq: int) -> bytes:
     except (struct.error, ValueError, OverflowError, TypeError) as exc:
         raise ValueError(f"cannot encode {msg!r}: {exc}") from None
     return head + crc_hqx(head[2:], 0xFFFF).to_bytes(2, "little")
+
+
+def payload_bytes(cls: type) -> int:
+    """Payload length in bytes of a message of class ``cls`` (the frame adds 8)."""
+    return _BY_CLASS[cls].payload.size
+
+
+def payload_size_of_type(msg_type: int) -> int | None:
+    """Payload length of type byte ``msg_type``, or None for an unknown type."""
+    codec = _BY_TYPE.get(msg_type)
+    return None if codec is None else codec.payload.size
+
+
+def encode_payload(msg: Message) -> tuple[int, bytes]:
+    """``(type byte, payload)`` of ``msg`` without framing (for CAN, which frames itself).
+
+    Raises ``ValueError`` like ``encode``.
+    """
+    codec = _BY_CLASS.get(type(msg))
+    if codec is None:
+        raise TypeError(f"not a protocol message: {msg!r}")
+    if codec is _TELEMETRY:
+        return codec.msg_type, _encode_telemetry(msg, 0)[HEADER_BYTES:-CRC_BYTES]  # type: ignore[arg-type]
+    try:
+        return codec.msg_type, codec.payload.pack(*codec.to_wire(msg))
+    except (struct.error, ValueError, OverflowError, TypeError) as exc:
+        raise ValueError(f"cannot encode {msg!r}: {exc}") from None
+
+
+def decode_payload(msg_type: int, payload: bytes, seq: int = 0) -> Message | Malformed:
+    """Decode one unframed payload; a payload that cannot be decoded gives ``Malformed``."""
+    codec = _BY_TYPE.get(msg_type)
+    length = len(payload)
+    if codec is not None and codec.payload.size == length:
+        try:
+            return codec.from_wire(codec.payload.unpack(payload))
+        except KeyError:
+            code = NackCode.OUT_OF_RANGE
+    else:
+        code = NackCode.UNKNOWN_TYPE if codec is None else NackCode.BAD_LENGTH
+    cmd_id = payload[0] | (payload[1] << 8) if length >= 2 else 0
+    return Malformed(msg_type, seq, cmd_id, code)
 
 
 # ------------------------------------------------------------------ decoder

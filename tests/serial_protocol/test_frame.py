@@ -18,9 +18,13 @@ from serial_protocol.frame import (
     Decoder,
     crc8,
     crc16,
+    decode_payload,
     encode,
+    encode_payload,
     frame_bytes,
     frame_raw,
+    payload_bytes,
+    payload_size_of_type,
 )
 from serial_protocol.messages import (
     Ack,
@@ -166,6 +170,24 @@ def test_round_trip_every_message(cls, data, seq):
     assert decoder.feed(encoded) == [msg]
     assert decoder.last_seq == seq
     assert decoder.pending_bytes == 0
+
+
+@pytest.mark.parametrize("cls", list(BY_CLASS), ids=lambda c: c.__name__)
+@settings(max_examples=30)
+@given(data=st.data(), seq=u8)
+def test_unframed_payload_round_trip(cls, data, seq):
+    msg = data.draw(BY_CLASS[cls])
+    msg_type, payload = encode_payload(msg)
+    assert msg_type == cls.MSG_TYPE
+    assert len(payload) == payload_bytes(cls) == payload_size_of_type(msg_type)
+    assert frame_raw(msg_type, payload, seq) == encode(msg, seq)
+    assert decode_payload(msg_type, payload) == msg
+
+
+def test_unframed_payload_malformed():
+    assert decode_payload(0x55, b"\x01\x02") == Malformed(0x55, 0, 0x0201, NackCode.UNKNOWN_TYPE)
+    assert decode_payload(MsgType.ACK, b"\x01") == Malformed(MsgType.ACK, 0, 0, NackCode.BAD_LENGTH)
+    assert payload_size_of_type(0x55) is None
 
 
 def test_nan_and_infinity_travel_in_float_fields():

@@ -1,0 +1,126 @@
+"""Message links over real ports: pyserial ``serial_for_url`` (``/dev/tty*``, ``loop://``,
+``socket://host:port``, a ``serve --pty`` device).
+
+A *link* moves messages, not bytes: ``send(msg)`` frames and writes one message,
+``poll(timeout_s)`` returns the messages that arrived. ``SerialLink`` here and
+``can_link.CanLink`` share that interface (``Link``), so the PC-side client
+(``serial_protocol.host``) works the same over serial and CAN.
+
+Only this module and ``can_link`` import the I/O libraries.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import BinaryIO, Protocol
+
+import serial
+
+from serial_protocol.exceptions import LinkError
+from serial_protocol.frame import Decoder, DecoderStats, encode
+from serial_protocol.messages import Malformed, Message
+
+__all__ = ["Link", "SerialLink", "open_serial"]
+
+#: A line quiet for this long ends any partial frame (``Decoder.flush``).
+IDLE_FLUSH_S = 0.05
+
+
+class Link(Protocol):
+    """What the host client needs from a transport."""
+
+    def send(self, msg: Message) -> None:
+        """Send one message."""
+
+    def poll(self, timeout_s: float) -> list[Message | Malformed]:
+        """Wait up to ``timeout_s`` for input; return the messages that arrived."""
+
+    def close(self) -> None:
+        """Release the port."""
+
+
+def open_serial(url: str, baud: int = 115200, timeout_s: float = 0.0) -> serial.SerialBase:
+    """Open ``url`` with pyserial's ``serial_for_url`` (8N1, no flow control).
+
+    Raises ``LinkError`` naming the URL when the port cannot be opened.
+    """
+    try:
+        return serial.serial_for_url(url, baudrate=baud, timeout=timeout_s)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        raise LinkError(f"cannot open serial port {url!r} at {baud} baud: {exc}") from exc
+
+
+class SerialLink:
+    """Frames over a pyserial port.
+
+    ``port``: an open pyserial port (see ``open_serial``), or use ``SerialLink.open(url)``.
+    ``capture``: a binary file that receives a copy of every byte read (for
+    ``turntable-sim decode``). Counters: ``bytes_in``, ``bytes_out``, ``frames_out`` and the
+    decoder's (``stats()``).
+    """
+
+    def __init__(self, port: serial.SerialBase, capture: BinaryIO | None = None) -> None:
+        self.port = port
+        self.decoder = Decoder()
+        self.capture = capture
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.frames_out = 0
+        self._seq = 0
+        self._last_rx_wall_s = time.monotonic()
+
+    @classmethod
+    def open(cls, url: str, baud: int = 115200, capture: BinaryIO | None = None) -> SerialLink:
+        """Open ``url`` (``/dev/ttyUSB0``, ``loop://``, ``socket://host:port``, ...)."""
+        return cls(open_serial(url, baud), capture)
+
+    def __enter__(self) -> SerialLink:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    def send(self, msg: Message) -> None:
+        """Frame ``msg`` with the next sequence number and write it."""
+        self.send_bytes(encode(msg, self._seq))
+        self._seq = (self._seq + 1) & 0xFF
+        self.frames_out += 1
+
+    def send_bytes(self, data: bytes) -> None:
+        """Write raw bytes (a prepared frame, or garbage in a robustness test)."""
+        try:
+            self.port.write(data)
+            self.port.flush()
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"write to {self.port.port!r} failed: {exc}") from exc
+        self.bytes_out += len(data)
+
+    def poll(self, timeout_s: float) -> list[Message | Malformed]:
+        """Wait up to ``timeout_s`` for bytes; return the messages they complete."""
+        port = self.port
+        try:
+            port.timeout = max(0.0, timeout_s)
+            data = port.read(1)
+            if data and port.in_waiting:
+                data += port.read(port.in_waiting)
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"read from {port.port!r} failed: {exc}") from exc
+        now_s = time.monotonic()
+        if not data:
+            if self.decoder.pending_bytes and now_s - self._last_rx_wall_s > IDLE_FLUSH_S:
+                return self.decoder.flush()
+            return []
+        self._last_rx_wall_s = now_s
+        self.bytes_in += len(data)
+        if self.capture is not None:
+            self.capture.write(data)
+        return self.decoder.feed(data)
+
+    def stats(self) -> DecoderStats:
+        """The receive decoder's counters."""
+        return self.decoder.stats()
+
+    def close(self) -> None:
+        """Close the port (idempotent)."""
+        if self.port.is_open:
+            self.port.close()
