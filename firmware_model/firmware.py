@@ -337,9 +337,14 @@ class Firmware:
         self._v_clamp_dps = self.v_max_dps
 
     def _in_position(self) -> bool:
-        err = np.abs(np.asarray(self.law.pos_deg) - self._target_deg)
-        live = self._enabled if self._array_law else np.array([self._enabled_s])
-        return bool(np.all(err[live] <= self.params.limits.in_position_deg)) if live.any() else True
+        # Settled: within in_position_deg and slower than in_position_deg per 0.1 s.
+        tol = self.params.limits.in_position_deg
+        law = self.law
+        if not self._array_law:
+            return abs(law.pos_deg - self._target_deg) <= tol and abs(law.vel_dps) <= 10 * tol
+        ok = (np.abs(law.pos_deg - self._target_deg) <= tol) & (np.abs(law.vel_dps) <= 10 * tol)
+        live = self._enabled
+        return bool(np.all(ok[live])) if live.any() else True
 
     # ------------------------------------------------------------------ safety
     def _check_scalar(self) -> None:

@@ -88,6 +88,9 @@ def default_gains() -> dict[str, float]:
         / NOMINAL["kt_nm_per_a"],
         "position.kp_per_s": kp_pos_per_s,
         "estimator.bandwidth_rad_s": estimator_bw_rad_s,
+        "estimator.accel_per_amp_dps2": NOMINAL["kt_nm_per_a"]
+        / NOMINAL["inertia_kgm2"]
+        / MOTOR_RAD_S_PER_AXIS_DPS,
     }
 
 
@@ -255,15 +258,33 @@ class PositionLoopGains(_Checked):
 
 @dataclass(frozen=True)
 class EstimatorParams(_Checked):
-    """``[estimator]``: velocity observer (an alpha-beta tracking loop, i.e. a type-2 PLL on
-    the unwrapped encoder count) with both poles at ``exp(-bandwidth_rad_s * dt_s)``."""
+    """``[estimator]``: velocity observer on the unwrapped encoder count (the digital
+    tracking loop of a resolver-to-digital converter, one order up): position, velocity and
+    an acceleration disturbance (friction, load), all three poles at
+    ``exp(-bandwidth_rad_s * dt_s)``.
+
+    ``accel_per_amp_dps2`` (nominal Kt / J in axis deg/s^2 per A; 0 = off) feeds the sensed
+    current into the prediction as a known acceleration, so that the estimate does not lag
+    behind a current step; the disturbance state absorbs what the model gets wrong.
+    """
 
     bandwidth_rad_s: float = _f(_DEFAULTS["estimator.bandwidth_rad_s"], _rng(1.0, 5000.0))
+    accel_per_amp_dps2: float = _f(_DEFAULTS["estimator.accel_per_amp_dps2"], _rng(0.0, 1e7))
 
-    def alpha_beta(self, dt_s: float) -> tuple[float, float]:
-        """Observer gains (alpha on position, beta on velocity per tick), critically damped."""
+    def observer_gains(self, dt_s: float) -> tuple[float, float, float]:
+        """Gains ``(k_pos, k_vel, k_acc)`` of the third-order observer (position, velocity,
+        acceleration disturbance, in tick units) with a triple pole at
+        ``exp(-bandwidth_rad_s * dt_s)`` (Ackermann's formula on the error dynamics
+        ``(I - K H) F``)."""
         r = math.exp(-self.bandwidth_rad_s * dt_s)
-        return 1.0 - r * r, (1.0 - r) ** 2
+        f = np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+        h = np.array([[1.0, 0.0, 0.0]])
+        obs = np.vstack([h, h @ f, h @ f @ f])
+        c = np.poly([r, r, r])
+        phi = sum(c[i] * np.linalg.matrix_power(f, 3 - i) for i in range(4))
+        gain_l = phi @ np.linalg.solve(obs, np.array([0.0, 0.0, 1.0]))
+        k = np.linalg.solve(f, gain_l)
+        return float(k[0]), float(k[1]), float(k[2])
 
 
 @dataclass(frozen=True)

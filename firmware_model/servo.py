@@ -66,8 +66,12 @@ class _Common:
         self.dt_s = servo.dt_s
         self.dt_current_s = servo.dt_s / servo.current_loop_multiple
         self.delay = servo.compute_delay_ticks
-        self.alpha, self.beta = params.estimator.alpha_beta(servo.dt_s)
+        self.k_pos, self.k_vel, self.k_dist = params.estimator.observer_gains(servo.dt_s)
         self.dps_per_count_tick = AXIS_DEG_PER_COUNT * servo.tick_hz
+        # Counts per tick^2 of acceleration per ampere of sensed current (observer input).
+        self.counts_tick2_per_a = (
+            params.estimator.accel_per_amp_dps2 * servo.dt_s**2 / AXIS_DEG_PER_COUNT
+        )
         self.supply_v = cur.supply_v
         self.duty_limit = cur.duty_limit
         self.arr = cur.pwm_arr
@@ -110,6 +114,7 @@ class ScalarLaw(_Common):
         self._raw_prev = int(raw_counts)
         self._ep = 0.0
         self._v = 0.0
+        self._ad = 0.0
         self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self.vel_dps = 0.0
         self.vel_raw_dps = 0.0
@@ -127,19 +132,23 @@ class ScalarLaw(_Common):
         self.duty = 0.0
         self._pipe = [0.0] * self.delay
         self._pipe_i = 0
+        self._ref_pipe = [0.0] * (self.delay + 1)
+        self._ref_i = 0
 
     def estimate(self, raw_counts: int) -> None:
         """Unwrap the reading and update the velocity observer."""
         raw = int(raw_counts)
-        pred = self._ep + self._v
+        acc = self.counts_tick2_per_a * self.current_meas_a + self._ad
+        pred = self._ep + self._v + 0.5 * acc
         pred_int = math.floor(pred + 0.5)
         delta = (raw - self.count - pred_int) % _REV
         if delta >= _HALF_REV:
             delta -= _REV
         d = pred_int + delta
         err = d - pred
-        self._ep = (self.alpha - 1.0) * err
-        self._v += self.beta * err
+        self._ep = (self.k_pos - 1.0) * err
+        self._v = (self._v + acc) + self.k_vel * err
+        self._ad = self._ad + self.k_dist * err
         self.count += d
         self.innovation_counts = delta
         self.stuck_ticks = self.stuck_ticks + 1 if raw == self._raw_prev else 0
@@ -185,13 +194,22 @@ class ScalarLaw(_Common):
         applied = self.duty
         sensed = adc_counts * self.a_per_adc
         i_meas = sensed if applied > 0.0 else (-sensed if applied < 0.0 else 0.0)
-        self.current_meas_a = i_meas
         if not enabled:
             self.reset_control()
             self.current_meas_a = i_meas
             return 0.0
         i_ref = self.current_ref_a
-        e = i_ref - i_meas
+        # The PI compares the sample with the reference of the duty that produced it
+        # (delay + 1 periods ago); the feed-forward acts on the present reference.
+        k = self._ref_i
+        ref_d = self._ref_pipe[k]
+        if adc_counts == 0 and ref_d * applied <= 0.0:
+            # High-side sense blind (current against the duty, or no duty): trust the model.
+            i_meas = ref_d
+        self.current_meas_a = i_meas
+        e = ref_d - i_meas
+        self._ref_pipe[k] = i_ref
+        self._ref_i = (k + 1) % (self.delay + 1)
         u = self._kp_i * e + self._i_i + self._r_ff * i_ref + self._emf_ff * self.vel_dps
         u_lim = self.duty_limit * self.supply_v
         i_i = self._i_i
@@ -263,9 +281,12 @@ class ArrayLaw(_Common):
         self._kp_i = self._gain(g["kp_i"])
         self._ki_i_dt = self._gain(np.asarray(g["ki_i"]) * self.dt_current_s)
         self._r_ff, self._emf_ff = self._gain(g["r_ff"]), self._gain(g["emf_ff"])
-        self._alpha_m1 = self._gain(self.alpha - 1.0)
-        self._beta = self._gain(self.beta)
+        self._kpos_m1 = self._gain(self.k_pos - 1.0)
+        self._kvel = self._gain(self.k_vel)
+        self._kdist = self._gain(self.k_dist)
         self._k_vel = self._gain(self.dps_per_count_tick)
+        self._k_acc = self._gain(self.counts_tick2_per_a)
+        self._half = self._gain(0.5)
         self._inv_supply = self._gain(1.0 / self.supply_v)
         # Amperes per ADC count in Q8.24, applied as (adc * k + 2^7) >> 8 -> Q16.16.
         self._a_per_adc_q = int(round(self.a_per_adc * (1 << fx.GAIN_FRAC_BITS)))
@@ -282,6 +303,7 @@ class ArrayLaw(_Common):
         zero = np.zeros(self.n, dtype=np.int64 if self.fixed else float)
         self._ep = zero.copy()
         self._v = zero.copy()
+        self._ad = zero.copy()
         self._vel = zero.copy()
         self.vel_raw_dps = np.zeros(self.n)
         self.innovation_counts = np.zeros(self.n, dtype=np.int64)
@@ -300,19 +322,24 @@ class ArrayLaw(_Common):
             self._steps = np.zeros(self.n, dtype=np.int64)
             self._pipe = np.zeros((max(self.delay, 1), self.n), dtype=np.int64)
             self._pipe_i = 0
+            self._ref_pipe = np.zeros((self.delay + 1, self.n), dtype=dtype)
+            self._ref_i = 0
             return
         for arr in (self._i_v, self._i_i, self._vr, self._iref, self._steps):
             arr[mask] = 0
         self._pipe[:, mask] = 0
+        self._ref_pipe[:, mask] = 0
 
     # -- the three steps
     def estimate(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.asarray(raw_counts, dtype=np.int64)
+        acc = self._sat(self._mul(self._imeas, self._k_acc) + self._ad)
+        half_acc = self._mul(acc, self._half)
         if self.fixed:
-            pred = fx.sat32(self._ep + self._v)
+            pred = fx.sat32(fx.sat32(self._ep + self._v) + half_acc)
             pred_int = (pred + (1 << 15)) >> fx.SIG_FRAC_BITS
         else:
-            pred = self._ep + self._v
+            pred = self._ep + self._v + half_acc
             pred_int = np.floor(pred + 0.5).astype(np.int64)
         delta = (raw - self.count - pred_int) % _REV
         delta -= np.where(delta >= _HALF_REV, _REV, 0)
@@ -321,8 +348,9 @@ class ArrayLaw(_Common):
             err = fx.sat32((d << fx.SIG_FRAC_BITS) - pred)
         else:
             err = d - pred
-        self._ep = self._mul(err, self._alpha_m1)
-        self._v = self._sat(self._v + self._mul(err, self._beta))
+        self._ep = self._mul(err, self._kpos_m1)
+        self._v = self._sat(self._sat(self._v + acc) + self._mul(err, self._kvel))
+        self._ad = self._sat(self._ad + self._mul(err, self._kdist))
         self.count = self.count + d
         self.innovation_counts = delta
         self.stuck_ticks = np.where(raw == self._raw_prev, self.stuck_ticks + 1, 0)
@@ -366,7 +394,13 @@ class ArrayLaw(_Common):
             sensed = adc * self.a_per_adc
         i_meas = np.where(applied > 0, sensed, np.where(applied < 0, -sensed, 0))
         i_ref = self._iref
-        e = self._sat(i_ref - i_meas)
+        k = self._ref_i
+        ref_d = self._ref_pipe[k]
+        blind = (adc == 0) & (np.sign(ref_d) * np.sign(applied) <= 0)
+        i_meas = np.where(blind, ref_d, i_meas)
+        e = self._sat(ref_d - i_meas)
+        self._ref_pipe[k] = i_ref
+        self._ref_i = (k + 1) % (self.delay + 1)
         # Same association as ScalarLaw, so that float results agree bit for bit.
         u = self._sat(self._mul(e, self._kp_i) + self._i_i)
         u = self._sat(u + self._mul(i_ref, self._r_ff))
