@@ -31,7 +31,7 @@ class MiniPlant:
     coulomb_nm: float = 0.004
     a_per_adc: float = 3.3 / 4096 / 1000 * 8500
     theta0_rad: float = 0.0
-    substeps: int = 40
+    substeps: int = 10
     theta_rad: np.ndarray = field(init=False)
     omega_rad_s: np.ndarray = field(init=False)
     i_a: np.ndarray = field(init=False)
@@ -89,6 +89,8 @@ class Bench:
         self.received: list = []
         self.log: dict[str, list] = {}
         self.encoder_override = None  # callable(tick, counts) -> counts
+        self.adc_override = None  # callable(tick, adc) -> adc
+        self.enables: list = []
 
     def send(self, *msgs) -> bytes:
         data = b""
@@ -115,7 +117,10 @@ class Bench:
             m = fw.params.servo.current_loop_multiple
             for _ in range(m):
                 adc = plant.adc()
+                if self.adc_override is not None:
+                    adc = self.adc_override(k, adc)
                 duty, en = fw.current_tick(int(adc[0]) if scalar else adc)
+                self.enables.append(np.copy(en))
                 plant.step(duty, en, fw.dt_s / m)
             for key, value in fw.signals().items():
                 self.log.setdefault(key, []).append(np.copy(value))
