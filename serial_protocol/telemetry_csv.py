@@ -1,0 +1,57 @@
+"""Telemetry to CSV, as the PC side records it (``monitor --csv``, ``decode``).
+
+Columns: ``t_s`` (tick / tick_hz, the board's clock) then the ``Telemetry`` fields with their
+unit suffixes; ``state`` and ``fault`` are written by name.
+"""
+
+from __future__ import annotations
+
+import csv
+from typing import TextIO
+
+from serial_protocol.messages import Fault, State, Telemetry
+
+__all__ = ["TELEMETRY_CSV_COLUMNS", "TelemetryCsvWriter"]
+
+TELEMETRY_CSV_COLUMNS = (
+    "t_s",
+    "tick",
+    "sp_pos_deg",
+    "sp_vel_dps",
+    "pos_deg",
+    "vel_dps",
+    "current_a",
+    "duty",
+    "state",
+    "fault",
+)
+
+
+class TelemetryCsvWriter:
+    """Write ``Telemetry`` rows to an open text file (header first)."""
+
+    def __init__(self, out: TextIO, tick_hz: float = 500.0) -> None:
+        if not tick_hz > 0:
+            raise ValueError(f"tick_hz = {tick_hz!r}: must be > 0")
+        self.tick_hz = tick_hz
+        self.rows = 0
+        self._writer = csv.writer(out, lineterminator="\n")
+        self._writer.writerow(TELEMETRY_CSV_COLUMNS)
+
+    def write(self, msg: Telemetry) -> None:
+        """Append one row."""
+        self._writer.writerow(
+            (
+                f"{msg.tick / self.tick_hz:.6f}",
+                msg.tick,
+                repr(msg.sp_pos_deg),
+                repr(msg.sp_vel_dps),
+                repr(msg.pos_deg),
+                repr(msg.vel_dps),
+                repr(msg.current_a),
+                repr(msg.duty),
+                State(msg.state).name,
+                Fault(msg.fault).name,
+            )
+        )
+        self.rows += 1

@@ -1,0 +1,353 @@
+"""``turntable-sim monitor URL``: the PC-side tool, against ``serve --pty`` or a real board.
+
+Connects through pyserial (``/dev/ttyUSB0``, ``/dev/pts/N``, ``socket://host:port``,
+``loop://``) or CAN (``can://INTERFACE/CHANNEL``, e.g. ``can://socketcan/can0``), sends the
+commands given as options (in the order clear-fault, enable, limits, gains, telemetry, move,
+then the timed interrupts and stop), shows a live status line, records telemetry to CSV, and
+prints the link statistics at the end. ``--interactive`` reads commands from stdin instead
+(type ``help``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Callable
+from typing import Any
+
+HELP = "talk to a board or to 'serve --pty': send commands, show status, record telemetry CSV"
+
+INTERACTIVE_HELP = """commands (angles in axis degrees):
+  move TARGET_DEG [V_MAX_DPS [A_MAX_DPS2 [J_MAX_DPS3 [trapezoid|scurve|step]]]]
+  stop [A_MAX_DPS2]          clear                     status
+  enable | disable           telemetry DECIMATION      limits V A I_A FOLLOW_DEG
+  gains current|velocity|position KP KI KD               getgains LOOP
+  hello                      quit"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("url", help="serial port or pyserial URL, or can://INTERFACE/CHANNEL")
+    parser.add_argument("--baud", type=int, default=460800, help="serial baud rate (460800)")
+    parser.add_argument("--move", type=float, metavar="TARGET_DEG", help="move to this target")
+    parser.add_argument("--v-max", type=float, default=990.0, help="v_max in deg/s (990)")
+    parser.add_argument("--a-max", type=float, default=148.0, help="a_max in deg/s^2 (148)")
+    parser.add_argument("--j-max", type=float, default=0.0, help="j_max in deg/s^3 (s-curve)")
+    parser.add_argument("--profile", choices=("trapezoid", "scurve", "step"), default="trapezoid")
+    parser.add_argument(
+        "--interrupt",
+        nargs=2,
+        type=float,
+        action="append",
+        default=[],
+        metavar=("AFTER_S", "TARGET_DEG"),
+        help="after AFTER_S seconds send a new move to TARGET_DEG (the paper's interrupt); "
+        "repeatable",
+    )
+    parser.add_argument(
+        "--stop", type=float, metavar="AFTER_S", help="send a stop after AFTER_S seconds"
+    )
+    parser.add_argument(
+        "--gains",
+        nargs=4,
+        action="append",
+        default=[],
+        metavar=("LOOP", "KP", "KI", "KD"),
+        help="set gains of current|velocity|position; repeatable",
+    )
+    parser.add_argument(
+        "--limits",
+        nargs=4,
+        type=float,
+        metavar=("V_MAX", "A_MAX", "CURRENT_A", "FOLLOW_DEG"),
+        help="set the limits",
+    )
+    parser.add_argument("--clear-fault", action="store_true", help="clear a latched fault")
+    enable = parser.add_mutually_exclusive_group()
+    enable.add_argument("--enable", action="store_true", help="enable the bridge")
+    enable.add_argument("--disable", action="store_true", help="disable the bridge")
+    parser.add_argument("--telemetry", type=int, metavar="DECIMATION", help="set decimation")
+    parser.add_argument(
+        "--duration", type=float, default=5.0, help="seconds to listen after the commands (5)"
+    )
+    parser.add_argument("--csv", metavar="FILE", help="record the telemetry to this CSV")
+    parser.add_argument("--capture", metavar="FILE", help="record the raw received bytes")
+    parser.add_argument("--interactive", action="store_true", help="read commands from stdin")
+    parser.add_argument("--ack-timeout", type=float, default=0.1, help="seconds (0.1)")
+    parser.add_argument("--retries", type=int, default=3, help="retries per command (3)")
+    parser.add_argument("--quiet", action="store_true", help="no live status line")
+
+
+def main(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from serial_protocol.exceptions import CommandError, LinkTimeout
+    from serial_protocol.host import BoardClient
+    from serial_protocol.messages import FaultReport, Malformed, Nack, Telemetry
+    from serial_protocol.telemetry_csv import TelemetryCsvWriter
+
+    with contextlib.ExitStack() as stack:
+        capture = None
+        if args.capture:
+            capture = stack.enter_context(_open(args.capture, "wb"))
+        link = stack.enter_context(_open_link(args.url, args.baud, capture))
+        writer = None
+        if args.csv:
+            writer = TelemetryCsvWriter(stack.enter_context(_open(args.csv, "w")))
+        status = _StatusLine(enabled=not args.quiet)
+
+        def on_message(msg: Any) -> None:
+            if isinstance(msg, Telemetry):
+                if writer is not None:
+                    writer.write(msg)
+                status.show(msg)
+            elif isinstance(msg, FaultReport | Malformed):
+                status.say(f"<- {msg}")
+
+        client = BoardClient(link, args.ack_timeout, args.retries, on_message=on_message)
+        try:
+            hello = client.hello()
+        except LinkTimeout as exc:
+            raise CommandError(f"no board answers on {args.url}: {exc}") from exc
+        if writer is not None:
+            writer.tick_hz = float(hello.tick_hz)
+        status.say(
+            f"connected to {args.url}: protocol {hello.protocol_version}, firmware "
+            f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}, {hello.tick_hz} Hz"
+        )
+
+        def run(label: str, call: Callable[[], Any]) -> None:
+            reply = call()
+            mark = "NACK" if isinstance(reply, Nack) else "ok"
+            status.say(f"-> {label}: {mark} {reply}")
+
+        try:
+            for text in _scripted(args):
+                run(text, parse_command(client, text))
+            if args.interactive:
+                _interactive(client, status, run)
+            else:
+                _timed(client, args, run)
+        except LinkTimeout as exc:
+            status.say(f"link timeout: {exc}")
+            _report(client, link, writer, args)
+            return 1
+        except KeyboardInterrupt:
+            status.say("interrupted")
+        _report(client, link, writer, args)
+    return 0
+
+
+def parse_command(client: Any, text: str) -> Callable[[], Any]:
+    """Turn one interactive/scripted command line into a call on ``client``.
+
+    Raises ``CommandError`` naming the bad word.
+    """
+    from serial_protocol.exceptions import CommandError
+    from serial_protocol.messages import Loop, Profile
+
+    words = shlex.split(text)
+    if not words:
+        raise CommandError("empty command")
+    verb, rest = words[0].lower(), words[1:]
+
+    def floats(count_min: int, count_max: int) -> list[float]:
+        if not count_min <= len(rest) <= count_max:
+            raise CommandError(f"{text!r}: {verb} takes {count_min}..{count_max} numbers")
+        try:
+            return [float(w) for w in rest]
+        except ValueError:
+            raise CommandError(f"{text!r}: not a number") from None
+
+    def loop(word: str) -> Loop:
+        try:
+            return Loop[word.upper()]
+        except KeyError:
+            raise CommandError(f"{text!r}: loop must be current, velocity or position") from None
+
+    if verb == "move":
+        profile = Profile.TRAPEZOID
+        if rest and rest[-1].upper() in Profile.__members__:
+            profile = Profile[rest.pop().upper()]
+        values = floats(1, 4)
+        defaults = [0.0, 990.0, 148.0, 0.0]
+        values += defaults[len(values) :]
+        return lambda: client.move(*values, profile=profile)
+    if verb == "stop":
+        values = floats(0, 1)
+        return lambda: client.stop(*values)
+    if verb == "gains":
+        if len(rest) != 4:
+            raise CommandError(f"{text!r}: gains LOOP KP KI KD")
+        which = loop(rest[0])
+        rest = rest[1:]
+        kp, ki, kd = floats(3, 3)
+        return lambda: client.set_gains(which, kp, ki, kd)
+    if verb == "getgains":
+        if len(rest) != 1:
+            raise CommandError(f"{text!r}: getgains LOOP")
+        which = loop(rest[0])
+        return lambda: client.get_gains(which)
+    if verb == "limits":
+        values = floats(4, 4)
+        return lambda: client.set_limits(*values)
+    if verb == "telemetry":
+        (value,) = floats(1, 1)
+        return lambda: client.set_telemetry(int(value))
+    simple = {
+        "clear": client.clear_fault,
+        "status": client.status,
+        "hello": client.hello,
+        "enable": lambda: client.set_enable(True),
+        "disable": lambda: client.set_enable(False),
+    }
+    if verb in simple and not rest:
+        return simple[verb]
+    raise CommandError(f"{text!r}: unknown command (type 'help')")
+
+
+def _scripted(args: argparse.Namespace) -> list[str]:
+    out = []
+    if args.clear_fault:
+        out.append("clear")
+    if args.enable:
+        out.append("enable")
+    if args.disable:
+        out.append("disable")
+    if args.limits:
+        out.append("limits " + " ".join(repr(v) for v in args.limits))
+    for loop, kp, ki, kd in args.gains:
+        out.append(f"gains {loop} {kp} {ki} {kd}")
+    if args.telemetry is not None:
+        out.append(f"telemetry {args.telemetry}")
+    if args.move is not None:
+        out.append(_move_text(args, args.move))
+    return out
+
+
+def _move_text(args: argparse.Namespace, target_deg: float) -> str:
+    return f"move {target_deg!r} {args.v_max!r} {args.a_max!r} {args.j_max!r} {args.profile}"
+
+
+def _timed(client: Any, args: argparse.Namespace, run: Any) -> None:
+    """Listen for ``--duration`` seconds, sending the timed interrupts and stop."""
+    import time
+
+    events = sorted([(after, _move_text(args, target)) for after, target in args.interrupt])
+    if args.stop is not None:
+        events = sorted([*events, (args.stop, "stop")])
+    start_wall_s = time.monotonic()
+    end_wall_s = start_wall_s + max(args.duration, max((e[0] for e in events), default=0.0))
+    while True:
+        now_wall_s = time.monotonic()
+        while events and now_wall_s - start_wall_s >= events[0][0]:
+            _, text = events.pop(0)
+            run(text, parse_command(client, text))
+        if now_wall_s >= end_wall_s:
+            return
+        next_s = min(end_wall_s, start_wall_s + events[0][0] if events else end_wall_s)
+        client.collect(min(0.05, max(0.0, next_s - now_wall_s)))
+
+
+def _interactive(client: Any, status: Any, run: Any) -> None:
+    import select
+
+    from serial_protocol.exceptions import CommandError
+
+    status.say("type 'help' for the commands, 'quit' to end")
+    while True:
+        ready, _, _ = select.select([sys.stdin], [], [], 0.0)
+        if not ready:
+            client.collect(0.05)
+            continue
+        line = sys.stdin.readline()
+        if not line or line.strip() in ("quit", "exit"):
+            return
+        if not line.strip():
+            continue
+        if line.strip() == "help":
+            status.say(INTERACTIVE_HELP)
+            continue
+        try:
+            run(line.strip(), parse_command(client, line))
+        except CommandError as exc:
+            status.say(f"error: {exc}")
+
+
+def _report(client: Any, link: Any, writer: Any, args: argparse.Namespace) -> None:
+    print(file=sys.stderr)
+    s = client.stats
+    print(
+        f"commands {s.commands}: acks {s.acks}, nacks {s.nacks}, retries {s.retries}, "
+        f"timeouts {s.timeouts}; received telemetry {s.telemetry}, fault reports "
+        f"{s.fault_reports}, malformed {s.malformed}, stale answers {s.stale_replies}"
+    )
+    if hasattr(link, "decoder"):
+        d = link.stats()
+        print(
+            f"link: {link.bytes_in} bytes in, {link.bytes_out} out; frames {d.frames}, "
+            f"crc errors {d.crc_errors}, header errors {d.header_errors}, resyncs {d.resyncs}, "
+            f"bytes dropped {d.bytes_dropped}, sequence gaps {d.seq_gaps} "
+            f"(~{d.frames_missed} frames lost)"
+        )
+    else:
+        c = link.reassembler.stats
+        print(
+            f"CAN: frames in {c.frames}, out {link.frames_out}; messages {c.messages}, "
+            f"malformed {c.malformed}, reassembly errors {c.reassembly_errors}"
+        )
+    if writer is not None:
+        print(f"wrote {writer.rows} telemetry rows to {args.csv}")
+
+
+class _StatusLine:
+    """One live line on stderr (rewritten in place at most 10 times a second)."""
+
+    def __init__(self, enabled: bool) -> None:
+        import time
+
+        self.enabled = enabled and sys.stderr.isatty()
+        self._clock = time.monotonic
+        self._last_wall_s = 0.0
+
+    def show(self, msg: Any) -> None:
+        if not self.enabled:
+            return
+        now_wall_s = self._clock()
+        if now_wall_s - self._last_wall_s < 0.1:
+            return
+        self._last_wall_s = now_wall_s
+        sys.stderr.write(
+            f"\rtick {msg.tick:>9}  sp {msg.sp_pos_deg:>11.3f} deg  pos {msg.pos_deg:>11.3f} "
+            f"deg  vel {msg.vel_dps:>8.1f} deg/s  I {msg.current_a:>6.2f} A  "
+            f"{msg.state.name:<8} {msg.fault.name:<15}"
+        )
+        sys.stderr.flush()
+
+    def say(self, text: str) -> None:
+        if self.enabled:
+            sys.stderr.write("\r\x1b[K")
+        print(text, file=sys.stderr if self.enabled else sys.stdout)
+
+
+def _open(path: str, mode: str) -> Any:
+    from serial_protocol.exceptions import CommandError
+
+    try:
+        return open(path, mode, newline="" if "b" not in mode else None)
+    except OSError as exc:
+        raise CommandError(f"cannot open {path!r}: {exc.strerror}") from exc
+
+
+def _open_link(url: str, baud: int, capture: Any) -> Any:
+    if url.startswith("can://"):
+        from serial_protocol.can_link import CanLink
+        from serial_protocol.exceptions import CommandError
+
+        interface, _, channel = url[len("can://") :].partition("/")
+        if not interface or not channel:
+            raise CommandError(f"{url!r}: expected can://INTERFACE/CHANNEL")
+        return CanLink.open(interface, channel)
+    from serial_protocol.transport import SerialLink
+
+    return SerialLink.open(url, baud, capture=capture)
