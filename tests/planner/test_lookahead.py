@@ -1,0 +1,213 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from planner.lookahead import LookaheadQueue, plan_path, plan_program, plan_segment
+
+A = 10.0
+
+
+def seed_limits(lengths, dirs, speeds, *, v_max, a_max, period, contour_error=None):
+    """Seed 001's limits (1)-(5) at every inner junction, given the neighbours' speeds."""
+    out = []
+    for i in range(1, len(speeds) - 1):
+        cos_a = float(np.clip(np.dot(dirs[i - 1], dirs[i]), -1.0, 1.0))
+        alpha = math.acos(cos_a)
+        limits = [
+            math.sqrt(speeds[i - 1] ** 2 + 2 * a_max * lengths[i - 1]),  # (1) forward
+            math.sqrt(speeds[i + 1] ** 2 + 2 * a_max * lengths[i]),  # (3) backward
+            v_max,  # (4)
+        ]
+        if len(dirs[0]) == 1:
+            limits.append(math.inf if cos_a > 0 else 0.0)
+        elif alpha > 0.0:
+            limits.append(a_max * period / (2 * math.sin(alpha / 2)))  # (2) corner
+            if contour_error is not None:
+                limits.append(2 * contour_error / (period * math.tan(alpha / 2)))  # (5)
+        out.append(min(limits))
+    return out
+
+
+def geometry(points):
+    pts = np.asarray(points, dtype=float)
+    d = np.diff(pts, axis=0)
+    lengths = np.linalg.norm(d, axis=1)
+    return lengths, d / lengths[:, None]
+
+
+def check_plan(plan, *, v_max, a_max):
+    """Speed continuous at junctions, limits respected, path followed, ends at the end."""
+    segs = plan.segments
+    for k, seg in enumerate(segs):
+        prof = seg.profile
+        assert prof.case in {"1", "2", "3", "4", "5", "6", "7"}
+        assert prof.v0 == pytest.approx(plan.speeds[k]) and prof.v1 == pytest.approx(
+            plan.speeds[k + 1]
+        )
+        t = np.linspace(0.0, prof.duration, 201)
+        s, ds, dds = prof.at(t)
+        assert np.all(ds >= -1e-9 * v_max) and np.all(ds <= v_max * (1 + 1e-9))
+        assert np.all(np.abs(dds) <= a_max * (1 + 1e-9))
+        assert s[-1] == pytest.approx(seg.length, rel=1e-9, abs=1e-12)
+        if k:
+            assert seg.t_start == pytest.approx(segs[k - 1].t_end, rel=1e-12)
+            np.testing.assert_allclose(
+                seg.start,
+                segs[k - 1].start + segs[k - 1].direction * segs[k - 1].length,
+                atol=1e-9 * max(1.0, seg.length),
+            )
+    assert plan.speeds[0] == 0.0 and plan.speeds[-1] == 0.0
+    p_end, v_end, _ = plan.at(plan.duration + 1.0)
+    np.testing.assert_array_equal(p_end, plan.end)
+    assert np.all(v_end == 0.0)
+
+
+points_2d = st.lists(
+    st.tuples(st.floats(-100, 100), st.floats(-100, 100)), min_size=2, max_size=12
+).filter(lambda pts: all(math.dist(a, b) > 1e-6 for a, b in zip(pts, pts[1:], strict=False)))
+
+
+@settings(settings.get_profile("planner"))
+@given(points=points_2d, v_max=st.floats(0.5, 50.0), period=st.floats(1e-3, 0.1))
+def test_property_junction_speeds_are_the_seed_minimum(points, v_max, period):
+    plan = plan_path(points, v_max=v_max, a_max=A, period=period, contour_error=0.05)
+    lengths, dirs = geometry(points)
+    expected = seed_limits(
+        lengths, dirs, plan.speeds, v_max=v_max, a_max=A, period=period, contour_error=0.05
+    )
+    # Each inner speed equals the minimum of the seed's limits with its neighbours final.
+    np.testing.assert_allclose(plan.speeds[1:-1], expected, rtol=1e-12, atol=1e-12)
+    # l >= l_i on every segment, by construction: planning never refuses a segment.
+    for k, length in enumerate(lengths):
+        l_i = abs(plan.speeds[k + 1] ** 2 - plan.speeds[k] ** 2) / (2 * A)
+        assert length >= l_i * (1 - 1e-9) - 8 * math.ulp(max(plan.speeds) ** 2) / (2 * A)
+    check_plan(plan, v_max=v_max, a_max=A)
+
+
+def test_three_dimensional_path():
+    pts = [[0, 0, 0], [10, 0, 0], [10, 10, 0], [10, 10, 10], [0, 0, 0]]
+    plan = plan_path(pts, v_max=5.0, a_max=A, period=0.01)
+    check_plan(plan, v_max=5.0, a_max=A)
+    # A right angle: 2 V sin(45 deg) <= a T.
+    assert plan.speeds[1] == pytest.approx(A * 0.01 / (2 * math.sin(math.pi / 4)))
+    p, v, a = plan.at(np.linspace(-1.0, plan.duration + 1.0, 500))
+    assert p.shape == v.shape == a.shape == (500, 3)
+    np.testing.assert_array_equal(p[0], [0, 0, 0])
+
+
+def test_straight_waypoints_pass_at_full_speed():
+    pts = [[0.0, 0.0], [50.0, 0.0], [100.0, 0.0], [150.0, 0.0]]
+    plan = plan_path(pts, v_max=5.0, a_max=A, period=0.01)
+    assert plan.speeds == (0.0, 5.0, 5.0, 0.0)
+    # Same duration as one trapezoid over the whole line.
+    assert plan.duration == pytest.approx(150.0 / 5.0 + 5.0 / A)
+
+
+def test_one_dimensional_program_stops_only_at_reversals():
+    plan = plan_program([0.0, 100.0, 200.0, 50.0, 50.0, 300.0], v_max=990.0, a_max=148.0)
+    # Repeated 50 dropped; reversal at 200 and at 50 -> 0; 100 passed at speed.
+    assert len(plan.segments) == 4
+    assert plan.speeds[1] > 100.0
+    assert plan.speeds[2] == 0.0 and plan.speeds[3] == 0.0
+    t = np.linspace(0.0, plan.duration, 20001)
+    p, v, _ = plan.at(t)
+    assert p.shape == (20001, 1)
+    # The 1-D velocity is continuous: no jumps larger than a_max * dt.
+    assert np.max(np.abs(np.diff(v[:, 0]))) <= 148.0 * (t[1] - t[0]) * (1 + 1e-6)
+    assert p[-1, 0] == pytest.approx(300.0)
+
+
+def test_seed001_seven_cases():
+    v_m, a = 10.0, 2.0
+    cases = {
+        "1": ((8.0**2 - 2.0**2) / (2 * a), 2.0, 8.0),
+        "2": ((8.0**2 - 2.0**2) / (2 * a), 8.0, 2.0),
+        "3": (20.0, 2.0, 8.0),
+        "4": (20.0, 8.0, 2.0),
+        "5": (100.0, 2.0, v_m),
+        "6": (100.0, 2.0, 3.0),
+        "7": (10.0, 0.0, 0.0),
+    }
+    for case, (length, v_b, v_e) in cases.items():
+        prof = plan_segment(length, v_b, v_e, v_m, a)
+        assert prof.case == case
+        assert prof.at(0.0)[1] == v_b and prof.at(prof.duration)[:2] == (length, v_e)
+        t = np.linspace(0.0, prof.duration, 1001)
+        s, ds, dds = prof.at(t)
+        assert np.all(ds <= v_m * (1 + 1e-12)) and np.all(np.abs(dds) <= a * (1 + 1e-12))
+    # Case 4 is "cruise, then decelerate" (so a stop is at the very end), case 3 the mirror.
+    assert [ph[2] for ph in plan_segment(20.0, 8.0, 2.0, v_m, a).phases] == [0.0, -a]
+    assert [ph[2] for ph in plan_segment(20.0, 2.0, 8.0, v_m, a).phases] == [a, 0.0]
+    # Equal non-zero speeds and too short to reach v_m: a cruise.
+    assert plan_segment(5.0, 3.0, 3.0, v_m, a).duration == pytest.approx(5.0 / 3.0)
+
+
+def test_segment_shorter_than_l_i_is_refused():
+    with pytest.raises(ValueError, match="look-ahead was wrong"):
+        plan_segment(1.0, 0.0, 8.0, 10.0, 2.0)
+
+
+def random_polyline(rng, n, dim):
+    steps = rng.normal(size=(n, dim)) * rng.uniform(0.01, 20.0, size=(n, 1))
+    return np.vstack([np.zeros(dim), np.cumsum(steps, axis=0)])
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_streaming_with_whole_path_window_equals_batch(dim):
+    rng = np.random.default_rng(dim)
+    for _ in range(20):
+        pts = random_polyline(rng, 30, dim)
+        batch = plan_path(pts, v_max=8.0, a_max=A, period=0.01)
+        q = LookaheadQueue(pts[0], v_max=8.0, a_max=A, period=0.01, window=len(pts))
+        released = []
+        for p in pts[1:]:
+            released += q.append(p)
+            released += q.pop_ready()
+        released += q.flush()
+        assert len(released) == len(batch.segments)
+        for mine, theirs in zip(released, batch.segments, strict=True):
+            # Equal to rounding (directions are normalised one by one here, row-wise there).
+            assert mine.profile.v0 == pytest.approx(theirs.profile.v0, rel=1e-12, abs=1e-15)
+            assert mine.profile.v1 == pytest.approx(theirs.profile.v1, rel=1e-12, abs=1e-15)
+            assert mine.profile.duration == pytest.approx(theirs.profile.duration, rel=1e-12)
+            assert mine.t_start == pytest.approx(theirs.t_start, rel=1e-12)
+
+
+def test_streaming_small_window_can_always_stop_and_is_never_faster():
+    rng = np.random.default_rng(5)
+    pts = random_polyline(rng, 200, 2) * 0.05  # many short segments: the window binds
+    batch = plan_path(pts, v_max=8.0, a_max=A, period=0.01)
+    q = LookaheadQueue(pts[0], v_max=8.0, a_max=A, period=0.01, window=4)
+    released = []
+    for p in pts[1:]:
+        released += q.append(p)
+        released += q.pop_ready()
+        assert len(q) <= 4
+        # Whatever is pending can always be planned to a stop (plan_segment refuses l < l_i).
+        speeds = q._speeds()
+        assert speeds[-1] == 0.0
+        for k, (_, _, length) in enumerate(q._pending):
+            plan_segment(length, speeds[k], speeds[k + 1], 8.0, A)
+    released += q.flush()
+    assert len(released) == len(batch.segments)
+    for k, seg in enumerate(released):
+        if k:
+            assert seg.profile.v0 == released[k - 1].profile.v1  # continuous speed
+        assert seg.profile.v1 <= batch.segments[k].profile.v1 * (1 + 1e-12) + 1e-12
+    assert released[-1].profile.v1 == 0.0
+    assert sum(s.profile.duration for s in released) >= batch.duration * (1 - 1e-12)
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="period = 0.0"):
+        plan_path([[0, 0], [1, 1]], v_max=1.0, a_max=1.0, period=0.0)
+    with pytest.raises(ValueError, match="window = 0"):
+        LookaheadQueue([0.0, 0.0], v_max=1.0, a_max=1.0, period=0.01, window=0)
+    q = LookaheadQueue([0.0, 0.0], v_max=1.0, a_max=1.0, period=0.01)
+    with pytest.raises(ValueError, match="point = "):
+        q.append([1.0, 2.0, 3.0])
+    with pytest.raises(ValueError, match="points: must all be finite"):
+        plan_path([[0, 0], [1, math.nan]], v_max=1.0, a_max=1.0, period=0.01)
