@@ -21,6 +21,7 @@ from serial_protocol.frame import (
     decode_payload,
     encode,
     encode_payload,
+    encode_telemetry_fields,
     frame_bytes,
     frame_raw,
     payload_bytes,
@@ -195,6 +196,19 @@ def test_nan_and_infinity_travel_in_float_fields():
     [move] = decoder.feed(encode(Move(1, 10.0, math.nan, math.inf, -math.inf), 0))
     assert math.isnan(move.v_max_dps)
     assert move.a_max_dps2 == math.inf and move.j_max_dps3 == -math.inf
+
+
+@settings(max_examples=200)
+@given(
+    u32,
+    st.lists(st.floats(allow_nan=False, min_value=-1e12, max_value=1e12), min_size=6, max_size=6),
+    st.sampled_from(State),
+    st.sampled_from(Fault),
+    u8,
+)
+def test_encode_telemetry_fields_matches_encode(tick, values, state, fault, seq):
+    msg = Telemetry(tick, *values, state, fault)
+    assert encode_telemetry_fields(seq, tick, *values, state, fault) == encode(msg, seq)
 
 
 def test_telemetry_saturates_and_rejects_nan():

@@ -1,0 +1,159 @@
+"""Protocol benchmark: encode and decode cost, decoder throughput, UART cost per tick, and
+the share of framing in one simulated servo tick.
+
+    python3 benchmarks/bench_protocol.py [--quick]
+
+Prints a Markdown table (docs/benchmarks.md, section "Protocol"). Wall-clock timing, best of
+several repeats (``timeit``); the numbers depend on the machine and its load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import timeit
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from serial_protocol.frame import (  # noqa: E402
+    TELEMETRY_FRAME_BYTES,
+    Decoder,
+    encode,
+    encode_telemetry_fields,
+)
+from serial_protocol.messages import Fault, State, Telemetry  # noqa: E402
+from serial_protocol.uart import EmulatedUart, FaultInjection  # noqa: E402
+
+TICK_S = 0.002
+
+
+def best_us(stmt, number: int, repeat: int = 5) -> float:
+    """Best time of one call in microseconds."""
+    return min(timeit.repeat(stmt, number=number, repeat=repeat)) / number * 1e6
+
+
+def telemetry(tick: int) -> Telemetry:
+    return Telemetry(tick, tick * 0.0123, 990.0, tick * 0.0121, 989.5, 1.234, 0.5678, 2, 0)
+
+
+def bench_codec(n: int) -> list[tuple[str, float, str]]:
+    msg = telemetry(1234)
+    rows = [
+        ("Telemetry(...) construction", best_us(lambda: telemetry(1234), n), "us"),
+        ("encode(Telemetry) -> 34 bytes", best_us(lambda: encode(msg, 7), n), "us"),
+        (
+            "encode_telemetry_fields(...)",
+            best_us(
+                lambda: encode_telemetry_fields(
+                    7, 1234, 15.18, 990.0, 14.93, 989.5, 1.234, 0.5678, State.MOVING, Fault.NONE
+                ),
+                n,
+            ),
+            "us",
+        ),
+    ]
+    frames = b"".join(encode(telemetry(k), k) for k in range(1000))
+
+    def per_tick() -> None:
+        decoder = Decoder()
+        for k in range(0, len(frames), TELEMETRY_FRAME_BYTES):
+            decoder.feed(frames[k : k + TELEMETRY_FRAME_BYTES])
+
+    def bulk() -> None:
+        Decoder().feed(frames)
+
+    reps = max(1, n // 2000)
+    per_tick_us = best_us(per_tick, reps) / 1000
+    bulk_us = best_us(bulk, reps) / 1000
+    rows += [
+        ("decode, one frame per feed()", per_tick_us, "us/frame"),
+        ("decode throughput, one frame per feed()", 1e6 / per_tick_us, "frames/s"),
+        ("decode throughput, 34 kB per feed()", 1e6 / bulk_us, "frames/s"),
+    ]
+    faults = FaultInjection(bit_flip_rate=1e-3, drop_rate=1e-3, insert_rate=1e-3, burst_rate=1e-3)
+    uart = EmulatedUart(460800, 1 << 22, faults, seed=1)
+    uart.write(frames * 4)
+    noisy = uart.advance(1e3)
+
+    def noisy_bulk() -> None:
+        Decoder().feed(noisy)
+
+    noisy_us = best_us(noisy_bulk, reps) / 4000
+    rows.append(("decode throughput, 0.4 % faulty bytes", 1e6 / noisy_us, "frames/s"))
+    return rows
+
+
+def bench_uart(n: int) -> list[tuple[str, float, str]]:
+    frame = encode(telemetry(1), 0)
+    out = []
+    for label, faults in (
+        ("clean", None),
+        ("faults 1e-4/byte", FaultInjection(bit_flip_rate=1e-4)),
+    ):
+        uart = EmulatedUart(460800, 256, faults, seed=0)
+
+        def tick(uart=uart) -> None:
+            uart.write(frame)
+            uart.advance(TICK_S)
+
+        out.append((f"UART write(34 B) + advance(2 ms), {label}", best_us(tick, n), "us/tick"))
+    return out
+
+
+def bench_simulation(ticks: int) -> tuple[float, float] | None:
+    """Wall time of one simulated tick and the firmware's telemetry encode + PC decode."""
+    try:
+        from serial_protocol.messages import Move, SetEnable
+        from sim.config import load_bench
+        from sim.loop import Simulation
+    except ImportError as exc:
+        print(f"(simulation not available: {exc})", file=sys.stderr)
+        return None
+    bench = load_bench(Path(__file__).resolve().parents[1] / "bench_configs" / "paper_bench.toml")
+    sim = Simulation(bench, seed=0)
+    sim.pc_write(encode(SetEnable(1, True), 0) + encode(Move(2, 3000.0, 990.0, 148.0), 1))
+    decoder = Decoder()
+
+    def run() -> None:
+        for _ in range(ticks):
+            sim.step()
+            decoder.feed(sim.pc_read())
+
+    tick_us = best_us(run, 1, repeat=3) / ticks
+    return tick_us, decoder.frames / max(1, 3 * ticks)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer repeats (a smoke run)")
+    args = parser.parse_args()
+    n = 2_000 if args.quick else 50_000
+    rows = bench_codec(n) + bench_uart(n)
+    sim = bench_simulation(500 if args.quick else 5_000)
+    print("| measurement | value | unit |\n|---|---|---|")
+    for label, value, unit in rows:
+        print(f"| {label} | {value:,.2f} | {unit} |" if value < 1000 else
+              f"| {label} | {value:,.0f} | {unit} |")  # fmt: skip
+    if sim is not None:
+        tick_us, frames_per_tick = sim
+        encode_us = rows[1][1]
+        decode_us = rows[3][1]
+        uart_us = rows[-2][1]
+        framing_us = (encode_us + decode_us) * frames_per_tick
+        print(f"| simulated tick (firmware + plant + UART + PC decode) | {tick_us:.2f} | us |")
+        print(f"| telemetry frames per tick in that run | {frames_per_tick:.2f} | |")
+        print(
+            f"| framing per tick (encode + decode) x frames per tick | {framing_us:.2f} | us "
+            f"({100 * framing_us / tick_us:.1f} % of the tick) |"
+        )
+        print(
+            f"| UART per tick (both directions ~ 2x) | {2 * uart_us:.2f} | us "
+            f"({100 * 2 * uart_us / tick_us:.1f} % of the tick) |"
+        )
+        print(f"| real-time factor of that run | {2000 / tick_us:.0f} | x |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
