@@ -206,9 +206,12 @@ class BoardClient:
             left_s = end_wall_s - time.monotonic()
             if left_s <= 0:
                 return None
-            for msg in self.link.poll(min(left_s, 0.05)):
+            batch = self.link.poll(min(left_s, 0.05))
+            for k, msg in enumerate(batch):
                 self._dispatch(msg)
                 if predicate(msg):
+                    for later in batch[k + 1 :]:
+                        self._dispatch(later)
                     return msg
 
     def _exchange(self, msg: Message, is_answer: Callable[[Message | Malformed], bool]) -> Message:
@@ -222,8 +225,12 @@ class BoardClient:
                 left_s = end_wall_s - time.monotonic()
                 if left_s <= 0:
                     break
-                for got in self.link.poll(left_s):
+                batch = self.link.poll(left_s)
+                for k, got in enumerate(batch):
                     if is_answer(got):
+                        # what arrived after the answer in the same read is not lost
+                        for later in batch[k + 1 :]:
+                            self._dispatch(later)
                         return got  # type: ignore[return-value]
                     self._dispatch(got)
         self.stats.timeouts += 1

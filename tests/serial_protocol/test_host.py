@@ -35,8 +35,9 @@ class ScriptedBoard:
     """An in-memory ``Link`` standing in for a board: it answers commands, can ignore the
     first ``lose`` of them (a lost frame) and interleaves telemetry with its answers."""
 
-    def __init__(self, lose: int = 0, answer=None) -> None:
+    def __init__(self, lose: int = 0, answer=None, after_answer: bool = False) -> None:
         self.lose = lose
+        self.after_answer = after_answer
         self.sent: list = []
         self._inbox: list = []
         self._tick = 0
@@ -58,6 +59,9 @@ class ScriptedBoard:
             return
         self._tick += 1
         self._inbox += [telemetry(self._tick), self.answer(msg)]
+        if self.after_answer:
+            self._tick += 1
+            self._inbox.append(telemetry(self._tick))
 
     def poll(self, timeout_s: float) -> list:
         out, self._inbox = self._inbox, []
@@ -74,6 +78,13 @@ def test_command_returns_the_matching_ack_and_collects_telemetry():
     assert reply == Ack(board.sent[0].cmd_id, Move.MSG_TYPE)
     assert list(client.telemetry) == [telemetry(1)]
     assert client.stats.acks == 1 and client.stats.retries == 0
+
+
+def test_messages_after_the_answer_in_the_same_read_are_kept():
+    client = BoardClient(ScriptedBoard(after_answer=True))
+    client.hello()
+    client.stop()
+    assert [t.tick for t in client.telemetry] == [1, 2, 3, 4]
 
 
 def test_nack_is_data_not_an_exception():
