@@ -181,8 +181,21 @@ def plan_scurve(
     Raises:
         ValueError: an argument is not finite or a limit is not > 0.
     """
-    _check_finite(p0=p0, p1=p1, v0=v0, a0=a0)
-    _check_positive(v_max=v_max, a_max=a_max, j_max=j_max)
+    isfinite = math.isfinite
+    if not (
+        isfinite(p0)
+        and isfinite(p1)
+        and isfinite(v0)
+        and isfinite(a0)
+        and isfinite(v_max)
+        and isfinite(a_max)
+        and isfinite(j_max)
+        and v_max > 0.0
+        and a_max > 0.0
+        and j_max > 0.0
+    ):  # the slow path names the bad argument
+        _check_finite(p0=p0, p1=p1, v0=v0, a0=a0)
+        _check_positive(v_max=v_max, a_max=a_max, j_max=j_max)
     p0, p1, v0, a0 = float(p0), float(p1), float(v0), float(a0)
     v_max, a_max, j_max = float(v_max), float(a_max), float(j_max)
     d = p1 - p0

@@ -124,8 +124,19 @@ def plan_trapezoid(
     Raises:
         ValueError: an argument is not finite, a limit is not > 0, or |v1| > v_max.
     """
-    _check_finite(p0=p0, p1=p1, v0=v0, v1=v1)
-    _check_positive(v_max=v_max, a_max=a_max)
+    isfinite = math.isfinite
+    if not (
+        isfinite(p0)
+        and isfinite(p1)
+        and isfinite(v0)
+        and isfinite(v1)
+        and isfinite(v_max)
+        and isfinite(a_max)
+        and v_max > 0.0
+        and a_max > 0.0
+    ):  # the slow path names the bad argument
+        _check_finite(p0=p0, p1=p1, v0=v0, v1=v1)
+        _check_positive(v_max=v_max, a_max=a_max)
     if abs(v1) > v_max:
         raise ValueError(f"v1 = {v1!r}: |v1| must be <= v_max = {v_max!r}")
     p0, p1, v0, v1 = float(p0), float(p1), float(v0), float(v1)
