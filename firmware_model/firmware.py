@@ -60,7 +60,6 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
-    Telemetry,
 )
 
 __all__ = ["FW_VERSION", "Firmware"]
@@ -76,6 +75,13 @@ _LOOP_GAINS = {
 }
 # Commands that change something: a repeat of the last cmd_id is answered, not re-applied.
 _MUTATING = (Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry)
+_DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
+    int(State.DISABLED),
+    int(State.IDLE),
+    int(State.MOVING),
+    int(State.HOLDING),
+    int(State.FAULT),
+)
 
 
 def _finite(*values: float) -> bool:
@@ -126,6 +132,9 @@ class Firmware:
         self._fault_s = 0  # member 0 / scalar copies for the fast path
         self._enabled_s = False
         self._oc_ticks = np.zeros(n, dtype=np.int64)
+        self._oc_s = 0
+        self._oc_thr_a = params.safety.over_current_a
+        self._oc_samples = params.safety.over_current_ticks
         # Limits that SetLimits may change.
         lim = params.limits
         self.v_max_dps = lim.v_max_dps
@@ -156,24 +165,25 @@ class Firmware:
         budget = bytes_per_tick * (1.0 - tel.reply_reserve)
         self._auto_decimation = max(1, math.ceil(frame.TELEMETRY_FRAME_BYTES / budget))
         self._watchdog_ticks = round(params.safety.watchdog_s * params.servo.tick_hz)
-        self.counters: dict[str, int] = {
+        # Rare events count here; the per-tick TX counters are plain ints (see counters).
+        self._counts: dict[str, int] = {
             "rx_messages": 0,
             "rx_malformed": 0,
             "commands_applied": 0,
             "duplicates": 0,
             "nacks": 0,
             "faults": 0,
-            "tx_frames": 0,
-            "tx_bytes": 0,
-            "tx_telemetry_dropped": 0,
             "tx_replies_dropped": 0,
-            "telemetry_decimation": 0,
         }
+        self._tx_frames = 0
+        self._tx_bytes = 0
+        self._tx_dropped = 0
+        self._decimation = 0
         for code in NackCode:
-            self.counters[f"nack_{code.name}"] = 0
+            self._counts[f"nack_{code.name}"] = 0
         for fault in Fault:
             if fault is not Fault.NONE:
-                self.counters[f"fault_{fault.name}"] = 0
+                self._counts[f"fault_{fault.name}"] = 0
         self._set_decimation(tel.decimation)
 
     # ------------------------------------------------------------------ public API
@@ -205,7 +215,7 @@ class Firmware:
         else:
             p, v, a = self.sp_pos_deg, 0.0, 0.0
         self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2 = p, v, a
-        if self._scalar and not self._array_law:
+        if not self._array_law:
             if self._enabled_s:
                 law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
                 self._check_scalar()
@@ -230,15 +240,14 @@ class Firmware:
             enabled = self._enabled_s
             duty = law.current(adc_counts, enabled)
             if enabled:
-                thr = self.params.safety.over_current_a
-                if abs(law.current_meas_a) > thr:
-                    self._oc_ticks[0] += 1
-                    if self._oc_ticks[0] >= self.params.safety.over_current_ticks:
+                if abs(law.current_meas_a) > self._oc_thr_a:
+                    self._oc_s += 1
+                    if self._oc_s >= self._oc_samples:
                         self._trip(np.array([True]), Fault.OVER_CURRENT, law.current_meas_a)
                         law.reset_control()
                         return 0.0, False
                 else:
-                    self._oc_ticks[0] = 0
+                    self._oc_s = 0
             return duty, enabled
         enabled = self._enabled.copy()
         duty = law.current(adc_counts, enabled)
@@ -258,6 +267,20 @@ class Firmware:
     def signals(self) -> dict[str, Any]:
         """The firmware's view of this tick (floats, or ``(N,)`` arrays in batch)."""
         law = self.law
+        if not self._array_law:
+            return {
+                "sp_pos_deg": self.sp_pos_deg,
+                "sp_vel_dps": self.sp_vel_dps,
+                "sp_acc_dps2": self.sp_acc_dps2,
+                "pos_deg": law.pos_deg,
+                "vel_dps": law.vel_dps,
+                "vel_raw_dps": law.vel_raw_dps,
+                "current_meas_a": law.current_meas_a,
+                "current_ref_a": law.current_ref_a,
+                "duty": law.duty,
+                "state": self.state,
+                "fault": self._fault_s,
+            }
         state = self.state
         fault = self.fault
         out = {
@@ -282,23 +305,33 @@ class Firmware:
     @property
     def state(self) -> Any:
         """``State`` code (int; ``(N,)`` int array in batch)."""
-        motion = State.MOVING if self._moving else (State.HOLDING if self._moved else State.IDLE)
+        motion = _MOVING if self._moving else (_HOLDING if self._moved else _IDLE)
         if self._scalar:
-            if self._fault[0]:
-                return int(State.FAULT)
-            return int(motion) if self._enabled[0] else int(State.DISABLED)
-        st = np.where(self._enabled, int(motion), int(State.DISABLED))
-        return np.where(self._fault != 0, int(State.FAULT), st)
+            if self._fault_s:
+                return _FAULT
+            return motion if self._enabled_s else _DISABLED
+        st = np.where(self._enabled, motion, _DISABLED)
+        return np.where(self._fault != 0, _FAULT, st)
 
     @property
     def fault(self) -> Any:
         """Latched ``Fault`` code (int; ``(N,)`` array in batch)."""
-        return int(self._fault[0]) if self._scalar else self._fault.copy()
+        return self._fault_s if self._scalar else self._fault.copy()
 
     @property
     def telemetry_decimation(self) -> int:
         """Ticks between telemetry frames actually used (0 = off); see ``counters``."""
-        return self.counters["telemetry_decimation"]
+        return self._decimation
+
+    @property
+    def counters(self) -> dict[str, int]:
+        """A snapshot of the counters (see the class docstring)."""
+        out = dict(self._counts)
+        out["tx_frames"] = self._tx_frames
+        out["tx_bytes"] = self._tx_bytes
+        out["tx_telemetry_dropped"] = self._tx_dropped
+        out["telemetry_decimation"] = self._decimation
+        return out
 
     # ------------------------------------------------------------------ boot and state
     def _boot(self, encoder_counts: Any) -> None:
@@ -396,8 +429,8 @@ class Firmware:
         self._enabled_s = bool(self._enabled[0])
         self._fault_s = int(self._fault[0])
         hits = int(mask.sum())
-        self.counters["faults"] += hits
-        self.counters[f"fault_{fault.name}"] += hits
+        self._counts["faults"] += hits
+        self._counts[f"fault_{fault.name}"] += hits
         if self._array_law:
             self.law.reset_control(mask)
         else:
@@ -412,33 +445,33 @@ class Firmware:
     def _queue(self, msg: Any) -> None:
         if len(self._replies) >= self.params.telemetry.reply_queue_frames:
             self._replies.popleft()
-            self.counters["tx_replies_dropped"] += 1
+            self._counts["tx_replies_dropped"] += 1
         self._replies.append(msg)
 
     def _nack(self, msg: Any, code: NackCode) -> Nack:
-        self.counters["nacks"] += 1
-        self.counters[f"nack_{code.name}"] += 1
+        self._counts["nacks"] += 1
+        self._counts[f"nack_{code.name}"] += 1
         return Nack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE), code=code)
 
     def _handle(self, msg: Any) -> None:
         if isinstance(msg, Malformed):
-            self.counters["rx_malformed"] += 1
-            self.counters["nacks"] += 1
-            self.counters[f"nack_{NackCode(msg.code).name}"] += 1
+            self._counts["rx_malformed"] += 1
+            self._counts["nacks"] += 1
+            self._counts[f"nack_{NackCode(msg.code).name}"] += 1
             self._queue(Nack(cmd_id=msg.cmd_id, msg_type=msg.msg_type, code=msg.code))
             return
-        self.counters["rx_messages"] += 1
+        self._counts["rx_messages"] += 1
         self._last_rx_tick = self.tick
         if isinstance(msg, _MUTATING):
             key = (msg.cmd_id, int(msg.MSG_TYPE))
             if key == self._last_cmd:
-                self.counters["duplicates"] += 1
+                self._counts["duplicates"] += 1
                 self._queue(self._last_reply)
                 return
             reply = self._apply(msg)
             self._last_cmd, self._last_reply = key, reply
             if isinstance(reply, Ack):
-                self.counters["commands_applied"] += 1
+                self._counts["commands_applied"] += 1
             self._queue(reply)
             return
         reply = self._query(msg)
@@ -603,6 +636,7 @@ class Firmware:
             self._fault[:] = 0
             self._fault_s = 0
             self._oc_ticks[:] = 0
+            self._oc_s = 0
             self._disable()
         return None
 
@@ -624,13 +658,23 @@ class Firmware:
     def _set_decimation(self, requested: int) -> None:
         self._requested_decimation = requested
         used = 0 if requested == 0 else max(requested, self._auto_decimation)
-        self.counters["telemetry_decimation"] = used
+        self._decimation = used
 
     # ------------------------------------------------------------------ transmit
     def _transmit(self, tx_free: int) -> bytes:
+        replies = self._replies
+        dec = self._decimation
+        if not replies and dec == 1:  # the common case: one telemetry frame per tick
+            if frame.TELEMETRY_FRAME_BYTES <= tx_free:
+                data = self._telemetry()
+                self._seq = (self._seq + 1) & 0xFF
+                self._tx_frames += 1
+                self._tx_bytes += len(data)
+                return data
+            self._tx_dropped += 1
+            return b""
         out = b""
         free = tx_free
-        replies = self._replies
         while replies:
             data = frame.encode(replies[0], self._seq)
             if len(data) > free:
@@ -639,29 +683,30 @@ class Firmware:
             out += data
             free -= len(data)
             self._seq = (self._seq + 1) & 0xFF
-            self.counters["tx_frames"] += 1
-        dec = self.counters["telemetry_decimation"]
+            self._tx_frames += 1
         if dec and (self.tick - 1) % dec == 0:
             if frame.TELEMETRY_FRAME_BYTES <= free:
-                out += frame.encode(self._telemetry(), self._seq)
+                out += self._telemetry()
                 self._seq = (self._seq + 1) & 0xFF
-                self.counters["tx_frames"] += 1
+                self._tx_frames += 1
             else:
-                self.counters["tx_telemetry_dropped"] += 1
-        self.counters["tx_bytes"] += len(out)
+                self._tx_dropped += 1
+        self._tx_bytes += len(out)
         return out
 
-    def _telemetry(self) -> Telemetry:
+    def _telemetry(self) -> bytes:
+        """The telemetry frame of this tick (member 0), framed with the next sequence."""
         law = self.law
         if self._array_law:
             pos, vel = float(law.pos_deg[0]), float(law.vel_dps[0])
             cur, duty = float(law.current_meas_a[0]), float(law.duty[0])
+            state, fault = self._state0(), int(self._fault[0])
         else:
             pos, vel, cur, duty = law.pos_deg, law.vel_dps, law.current_meas_a, law.duty
-        return Telemetry(
-            tick=self.tick - 1, sp_pos_deg=self.sp_pos_deg, sp_vel_dps=self.sp_vel_dps,
-            pos_deg=pos, vel_dps=vel, current_a=cur, duty=duty,
-            state=State(self._state0()), fault=Fault(int(self._fault[0])),
+            state, fault = self.state, self._fault_s
+        return frame.encode_telemetry_fields(
+            self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
+            state, fault,
         )  # fmt: skip
 
 

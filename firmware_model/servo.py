@@ -102,6 +102,7 @@ class ScalarLaw(_Common):
         self._acc_ff = float(g["acc_ff"])
         self._kp_i, self._ki_i_dt = float(g["kp_i"]), float(g["ki_i"]) * self.dt_current_s
         self._r_ff, self._emf_ff = float(g["r_ff"]), float(g["emf_ff"])
+        self._u_lim = self.duty_limit * self.supply_v
 
     def set_gains(self, **gains: float) -> None:
         """Replace some of the run-time gains (names of :data:`GAIN_NAMES`)."""
@@ -185,7 +186,11 @@ class ScalarLaw(_Common):
                 i_v += self._ki_v_dt * ev
         else:
             i_v += self._ki_v_dt * ev
-        self._i_v = min(max(i_v, -i_limit_a), i_limit_a)
+        if i_v > i_limit_a:
+            i_v = i_limit_a
+        elif i_v < -i_limit_a:
+            i_v = -i_limit_a
+        self._i_v = i_v
         self.vel_ref_dps = vr
         self.current_ref_a = u
 
@@ -210,9 +215,9 @@ class ScalarLaw(_Common):
         e = ref_d - i_meas
         self._ref_pipe[k] = i_ref
         self._ref_i = (k + 1) % (self.delay + 1)
-        u = self._kp_i * e + self._i_i + self._r_ff * i_ref + self._emf_ff * self.vel_dps
-        u_lim = self.duty_limit * self.supply_v
         i_i = self._i_i
+        u = self._kp_i * e + i_i + self._r_ff * i_ref + self._emf_ff * self.vel_dps
+        u_lim = self._u_lim
         if u > u_lim:
             u = u_lim
             if e < 0.0:
@@ -223,8 +228,13 @@ class ScalarLaw(_Common):
                 i_i += self._ki_i_dt * e
         else:
             i_i += self._ki_i_dt * e
-        self._i_i = min(max(i_i, -u_lim), u_lim)
-        duty = round(u / self.supply_v * self.arr) / self.arr
+        if i_i > u_lim:
+            i_i = u_lim
+        elif i_i < -u_lim:
+            i_i = -u_lim
+        self._i_i = i_i
+        arr = self.arr
+        duty = round(u / self.supply_v * arr) / arr
         if self.delay:
             out = self._pipe[self._pipe_i]
             self._pipe[self._pipe_i] = duty
