@@ -92,8 +92,19 @@ def time_optimal_segments(
         vp = sigma * v_max
         ramps = sigma * (2.0 * v_max * v_max - v * v - v1 * v1) / (2.0 * a_max)
         t_cruise = max((d - ramps) / vp, 0.0)
-    t_up = max(sigma * (vp - v), 0.0) / a_max
-    t_down = max(sigma * (vp - v1), 0.0) / a_max
+        t_up = max(sigma * (vp - v), 0.0) / a_max
+        t_down = max(sigma * (vp - v1), 0.0) / a_max
+    else:
+        # |vp| - sigma v without the cancellation of two near-equal speeds:
+        # (peak^2 - v^2) / (|vp| + sigma v), with peak^2 - v^2 = sigma a d + (v1^2 - v^2)/2.
+        rise = sigma * a_max * d + 0.5 * (v1 - v) * (v1 + v)
+        fall = sigma * a_max * d + 0.5 * (v - v1) * (v + v1)
+        abs_vp = abs(vp)
+        sv, sv1 = sigma * v, sigma * v1
+        up = rise / (abs_vp + sv) if sv > 0.0 else abs_vp - sv
+        down = fall / (abs_vp + sv1) if sv1 > 0.0 else abs_vp - sv1
+        t_up = max(up, 0.0) / a_max
+        t_down = max(down, 0.0) / a_max
     segments.append((t_up, sigma * a_max))
     segments.append((t_cruise, 0.0))
     segments.append((t_down, -sigma * a_max))
