@@ -6,8 +6,8 @@ Fields are engineering units with the suffixes of ``firmware_model/units.py``; t
 
 Every command from the PC except ``Hello`` starts with ``cmd_id`` (u16, chosen by the PC):
 the board answers it with ``Ack``/``Nack`` (or with the requested data) carrying the same
-``cmd_id``, and acknowledges a repeat of its last ``cmd_id`` without applying it again, so
-a retry after a lost ACK is harmless.
+``cmd_id``, and answers a repeat of its last ``(cmd_id, type)`` again without applying it
+again, so a retry after a lost ACK is harmless.
 
 Command fields that are rates, limits or gains travel as IEEE-754 float32 so that a PC can
 send NaN or infinity and the firmware can NACK them (``NackCode.NOT_FINITE``); positions
@@ -216,7 +216,7 @@ class GetStatus:
 
 @dataclass(frozen=True, slots=True)
 class ClearFault:
-    """Clear a latched fault (the board then goes to ``State.IDLE`` or ``DISABLED``)."""
+    """Clear a latched fault; the board goes to ``State.DISABLED`` (send ``SetEnable``)."""
 
     MSG_TYPE: ClassVar[int] = MsgType.CLEAR_FAULT
     cmd_id: int

@@ -71,8 +71,18 @@ class SerialLink:
 
     @classmethod
     def open(cls, url: str, baud: int = 115200, capture: BinaryIO | None = None) -> SerialLink:
-        """Open ``url`` (``/dev/ttyUSB0``, ``loop://``, ``socket://host:port``, ...)."""
-        return cls(open_serial(url, baud), capture)
+        """Open ``url`` (``/dev/ttyUSB0``, ``loop://``, ``socket://host:port``, ...).
+
+        Bytes that were waiting in the port before it was opened (stale telemetry) are
+        discarded.
+        """
+        port = open_serial(url, baud)
+        try:
+            port.reset_input_buffer()
+        except (serial.SerialException, OSError) as exc:
+            port.close()
+            raise LinkError(f"cannot flush serial port {url!r}: {exc}") from exc
+        return cls(port, capture)
 
     def __enter__(self) -> SerialLink:
         return self

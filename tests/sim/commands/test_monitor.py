@@ -146,3 +146,40 @@ def test_parse_command(text, expected):
 def test_parse_command_rejects_bad_input(text):
     with pytest.raises(CommandError):
         monitor.parse_command(RecordingClient(), text)
+
+
+def test_monitor_over_can_virtual_bus(capsys):
+    import uuid
+
+    from serial_protocol.can_link import CanLink
+
+    channel = f"monitor-{uuid.uuid4().hex}"
+    board = CanLink.open("virtual", channel)
+    stop = threading.Event()
+    received = []
+
+    def serve() -> None:
+        tick = 0
+        while not stop.is_set():
+            for msg in board.poll(0.01):
+                received.append(msg)
+                if isinstance(msg, Hello):
+                    board.send(HelloReply(1, 0, 1, 0, 500, 16384))
+                else:
+                    board.send(Ack(msg.cmd_id, msg.MSG_TYPE))
+            tick += 5
+            board.send(Telemetry(tick, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, State.IDLE, Fault.NONE))
+
+    worker = threading.Thread(target=serve, daemon=True)
+    worker.start()
+    try:
+        argv = [f"can://virtual/{channel}", "--move", "90", "--duration", "0.2", "--quiet"]
+        assert run_monitor(argv) == 0
+    finally:
+        stop.set()
+        worker.join(timeout=5)
+        board.close()
+    assert [type(m) for m in received] == [Hello, Move]
+    assert received[1].target_deg == 90.0
+    report = capsys.readouterr().out
+    assert "commands 2: acks 1" in report and "reassembly errors 0" in report
