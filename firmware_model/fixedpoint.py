@@ -43,25 +43,28 @@ INT32_MAX = (1 << 31) - 1
 _SIG_ONE = float(1 << SIG_FRAC_BITS)
 _GAIN_ONE = float(1 << GAIN_FRAC_BITS)
 _GAIN_HALF = 1 << (GAIN_FRAC_BITS - 1)
+# numpy scalars: np.clip with Python-int bounds looks up integer limits on every call.
+_LO = np.int64(INT32_MIN)
+_HI = np.int64(INT32_MAX)
 
 IntArray = npt.NDArray[np.int64]
 
 
 def sat32(x: IntArray) -> IntArray:
     """Saturate int64 values to the int32 range."""
-    return np.clip(x, INT32_MIN, INT32_MAX)
+    return np.minimum(np.maximum(x, _LO), _HI)
 
 
 def to_sig(x: float | npt.ArrayLike) -> IntArray:
     """A float (array) as Q16.16 raw integers, rounded to nearest and saturated."""
     scaled = np.round(np.asarray(x, dtype=float) * _SIG_ONE)
-    return np.clip(scaled, INT32_MIN, INT32_MAX).astype(np.int64)
+    return np.minimum(np.maximum(scaled, float(INT32_MIN)), float(INT32_MAX)).astype(np.int64)
 
 
 def to_gain(x: float | npt.ArrayLike) -> IntArray:
     """A float (array) as Q8.24 raw integers, rounded to nearest and saturated."""
     scaled = np.round(np.asarray(x, dtype=float) * _GAIN_ONE)
-    return np.clip(scaled, INT32_MIN, INT32_MAX).astype(np.int64)
+    return np.minimum(np.maximum(scaled, float(INT32_MIN)), float(INT32_MAX)).astype(np.int64)
 
 
 def from_sig(q: IntArray) -> npt.NDArray[np.float64]:

@@ -58,6 +58,15 @@ GAIN_NAMES: dict[str, tuple[str, str]] = {
 }
 
 
+def _identity(x: Any) -> Any:
+    return x
+
+
+def _clip(x: Any, limit: Any) -> Any:
+    """Clamp to [-limit, limit] (two ufuncs: cheaper than np.clip's wrapper)."""
+    return np.minimum(np.maximum(x, -limit), limit)
+
+
 class _Common:
     """Constants both implementations derive from the parameters."""
 
@@ -258,6 +267,13 @@ class ArrayLaw(_Common):
         self._init_common(params)
         self.n = n
         self.fixed = fixed
+        # Bind the arithmetic once: no per-call branch on the hot path.
+        if fixed:
+            self._mul, self._sat = fx.mul_gain, fx.sat32
+            self._sig, self._out = fx.to_sig, fx.from_sig
+        else:
+            self._mul, self._sat = np.multiply, _identity
+            self._sig, self._out = _identity, _identity
         for name, value in self.gains.items():
             if isinstance(value, np.ndarray) and value.shape != (n,):
                 raise ValueError(f"{name}: gain array shape {value.shape} != ({n},)")
@@ -268,19 +284,6 @@ class ArrayLaw(_Common):
     def _gain(self, x: Any) -> npt.NDArray[Any]:
         arr = np.broadcast_to(np.asarray(x, dtype=float), (self.n,)).copy()
         return fx.to_gain(arr) if self.fixed else arr
-
-    def _sig(self, x: Any) -> Any:
-        """A shared float (or array) input as a signal of the arithmetic in use."""
-        return fx.to_sig(x) if self.fixed else x
-
-    def _mul(self, s: Any, g: Any) -> Any:
-        return fx.mul_gain(s, g) if self.fixed else s * g
-
-    def _sat(self, x: Any) -> Any:
-        return fx.sat32(x) if self.fixed else x
-
-    def _out(self, x: Any) -> npt.NDArray[np.float64]:
-        return fx.from_sig(x) if self.fixed else x
 
     def _derive(self) -> None:
         g = self.gains
@@ -352,7 +355,7 @@ class ArrayLaw(_Common):
             pred = self._ep + self._v + half_acc
             pred_int = np.floor(pred + 0.5).astype(np.int64)
         delta = (raw - self.count - pred_int) % _REV
-        delta -= np.where(delta >= _HALF_REV, _REV, 0)
+        delta -= (delta >= _HALF_REV) * _REV
         d = pred_int + delta
         if self.fixed:
             err = fx.sat32((d << fx.SIG_FRAC_BITS) - pred)
@@ -363,7 +366,7 @@ class ArrayLaw(_Common):
         self._ad = self._sat(self._ad + self._mul(err, self._kdist))
         self.count = self.count + d
         self.innovation_counts = delta
-        self.stuck_ticks = np.where(raw == self._raw_prev, self.stuck_ticks + 1, 0)
+        self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
         self._raw_prev = raw
         self.vel_raw_dps = d * self.dps_per_count_tick
         self._vel = self._mul(self._v, self._k_vel)
@@ -383,15 +386,15 @@ class ArrayLaw(_Common):
             e = sp_pos_deg - self.count * AXIS_DEG_PER_COUNT
         vc, il = self._sig(v_clamp_dps), self._sig(i_limit_a)
         vr = self._sat(self._mul(e, self._kp_p) + self._mul(self._sig(sp_vel_dps), self._vff))
-        vr = np.clip(vr, -vc, vc)
+        vr = _clip(vr, vc)
         ev = self._sat(vr - self._vel)
         ff = self._mul(self._sig(sp_acc_dps2), self._acc_ff)
         u = self._sat(self._sat(self._mul(ev, self._kp_v) + self._i_v) + ff)
         hold = ((u > il) & (ev > 0)) | ((u < -il) & (ev < 0))
         i_v = np.where(hold, self._i_v, self._sat(self._i_v + self._mul(ev, self._ki_v_dt)))
-        self._i_v = np.clip(i_v, -il, il)
+        self._i_v = _clip(i_v, il)
         self._vr = vr
-        self._iref = np.clip(u, -il, il)
+        self._iref = _clip(u, il)
 
     def current(
         self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
@@ -402,11 +405,12 @@ class ArrayLaw(_Common):
             sensed = (adc * self._a_per_adc_q + (1 << 7)) >> (fx.GAIN_FRAC_BITS - fx.SIG_FRAC_BITS)
         else:
             sensed = adc * self.a_per_adc
-        i_meas = np.where(applied > 0, sensed, np.where(applied < 0, -sensed, 0))
+        sign = np.sign(applied)
+        i_meas = sensed * sign
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
-        blind = (adc == 0) & (np.sign(ref_d) * np.sign(applied) <= 0)
+        blind = (adc == 0) & (np.sign(ref_d) * sign <= 0)
         i_meas = np.where(blind, ref_d, i_meas)
         e = self._sat(ref_d - i_meas)
         self._ref_pipe[k] = i_ref
@@ -418,25 +422,24 @@ class ArrayLaw(_Common):
         ul = self._sig(self.duty_limit * self.supply_v)
         hold = ((u > ul) & (e > 0)) | ((u < -ul) & (e < 0))
         i_i = np.where(hold, self._i_i, self._sat(self._i_i + self._mul(e, self._ki_i_dt)))
-        self._i_i = np.clip(i_i, -ul, ul)
-        u = np.clip(u, -ul, ul)
+        self._i_i = _clip(i_i, ul)
+        u = _clip(u, ul)
         if self.fixed:
             duty_q = self._mul(u, self._inv_supply)
             steps = (duty_q * self.arr + (1 << 15)) >> fx.SIG_FRAC_BITS
         else:
             steps = np.round(u / self.supply_v * self.arr).astype(np.int64)
-        steps = np.where(enabled, steps, 0)
         if self.delay:
             out = self._pipe[self._pipe_i].copy()
             self._pipe[self._pipe_i] = steps
             self._pipe_i = (self._pipe_i + 1) % self.delay
         else:
             out = steps
-        out = np.where(enabled, out, 0)
         self._imeas = i_meas
-        off = ~np.asarray(enabled, dtype=bool)
-        if off.any():
-            self.reset_control(off)
+        enabled = np.asarray(enabled, dtype=bool)
+        if not enabled.all():
+            out = out * enabled
+            self.reset_control(~enabled)
         self._steps = out
         return out / self.arr
 
