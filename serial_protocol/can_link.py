@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import can
 
@@ -80,6 +81,22 @@ class CanReassembler:
 
     def feed(self, arbitration_id: int, data: bytes) -> Message | Malformed | None:
         """One CAN frame in; a complete message (or ``Malformed``) out, else None."""
+        raw = self.feed_raw(arbitration_id, data)
+        if raw is None:
+            return None
+        msg = decode_payload(*raw)
+        if isinstance(msg, Malformed):
+            self.stats.malformed += 1
+        else:
+            self.stats.messages += 1
+        return msg
+
+    def feed_raw(self, arbitration_id: int, data: bytes) -> tuple[int, bytes] | None:
+        """One CAN frame in; ``(type, payload)`` of a complete message out, else None.
+
+        The payload is not decoded (a gateway forwards it as it came, so that the board can
+        NACK a bad one itself).
+        """
         stats = self.stats
         stats.frames += 1
         msg_type = arbitration_id - self.base_id
@@ -88,7 +105,7 @@ class CanReassembler:
             return None
         size = payload_size_of_type(msg_type)
         if size is None or size <= CAN_DATA_BYTES:
-            return self._done(decode_payload(msg_type, bytes(data)))
+            return msg_type, bytes(data)
         if not data:
             stats.reassembly_errors += 1
             return None
@@ -113,14 +130,7 @@ class CanReassembler:
             self._partial[arbitration_id] = (counter, index + 1, buf)
             return None
         del self._partial[arbitration_id]
-        return self._done(decode_payload(msg_type, bytes(buf)))
-
-    def _done(self, msg: Message | Malformed) -> Message | Malformed:
-        if isinstance(msg, Malformed):
-            self.stats.malformed += 1
-        else:
-            self.stats.messages += 1
-        return msg
+        return msg_type, bytes(buf)
 
 
 class CanLink:
@@ -190,15 +200,22 @@ class CanLink:
 
     def poll(self, timeout_s: float) -> list[Message | Malformed]:
         """Wait up to ``timeout_s`` for frames; return the messages they complete."""
-        out: list[Message | Malformed] = []
+        return self._receive(timeout_s, self.reassembler.feed)
+
+    def poll_raw(self, timeout_s: float) -> list[tuple[int, bytes]]:
+        """Like ``poll`` but return ``(type, payload)`` pairs, undecoded (for a gateway)."""
+        return self._receive(timeout_s, self.reassembler.feed_raw)
+
+    def _receive(self, timeout_s: float, feed: Any) -> list[Any]:
+        out = []
         frame = self.bus.recv(timeout=max(0.0, timeout_s))
         while frame is not None:
             if self._logger is not None:
                 self._logger.on_message_received(frame)
             if not frame.is_extended_id and not frame.is_remote_frame:
-                msg = self.reassembler.feed(frame.arbitration_id, bytes(frame.data))
-                if msg is not None:
-                    out.append(msg)
+                got = feed(frame.arbitration_id, bytes(frame.data))
+                if got is not None:
+                    out.append(got)
             frame = self.bus.recv(timeout=0.0)
         return out
 
