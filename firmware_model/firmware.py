@@ -398,26 +398,43 @@ class Firmware:
 
     def _check_array(self) -> None:
         law, s = self.law, self.params.safety
+        # Cheap screen first (one reduction per trip); the per-member masks only on a hit.
+        innov = np.abs(law.innovation_counts)
+        stuck = law.stuck_ticks
+        vel = law.vel_dps
+        err = self.sp_pos_deg - law.pos_deg
+        following = self._mode != "step"
+        watchdog = bool(self._watchdog_ticks) and (
+            self.tick - self._last_rx_tick > self._watchdog_ticks
+        )
+        if not (
+            innov.max() > s.encoder_jump_counts
+            or (
+                stuck.max() >= s.encoder_stuck_ticks
+                and np.abs(law.vel_ref_dps).max() > s.encoder_stuck_min_vel_dps
+            )
+            or np.abs(vel).max() > s.over_speed_dps
+            or (following and np.abs(err).max() > self.following_error_deg)
+            or watchdog
+        ):
+            return
         live = self._enabled.copy()
-        enc = (np.abs(law.innovation_counts) > s.encoder_jump_counts) | (
-            (law.stuck_ticks >= s.encoder_stuck_ticks)
+        enc = (innov > s.encoder_jump_counts) | (
+            (stuck >= s.encoder_stuck_ticks)
             & (np.abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps)
         )
         self._trip(live & enc, Fault.ENCODER, law._raw_prev.astype(float))
-        vel = law.vel_dps
         live &= ~enc
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel)
         live &= ~over
-        if self._mode != "step":
-            err = self.sp_pos_deg - law.pos_deg
+        if following:
             fe = np.abs(err) > self.following_error_deg
             self._trip(live & fe, Fault.FOLLOWING_ERROR, err)
             live &= ~fe
-        if self._watchdog_ticks and self.tick - self._last_rx_tick > self._watchdog_ticks:
-            self._trip(
-                live, Fault.WATCHDOG, np.full(self._n, float(self.tick - self._last_rx_tick))
-            )
+        if watchdog:
+            ticks = float(self.tick - self._last_rx_tick)
+            self._trip(live, Fault.WATCHDOG, np.full(self._n, ticks))
 
     def _trip(self, mask: Any, fault: Fault, value: Any) -> None:
         """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion."""
@@ -508,8 +525,12 @@ class Firmware:
         return None  # board -> PC messages sent to the board are ignored (counted as rx)
 
     def _state0(self) -> int:
-        st = self.state
-        return int(st) if self._scalar else int(st[0])
+        """The state of member 0 (the one replies and telemetry describe)."""
+        if self._fault[0]:
+            return _FAULT
+        if not self._enabled[0]:
+            return _DISABLED
+        return _MOVING if self._moving else (_HOLDING if self._moved else _IDLE)
 
     def _apply(self, msg: Any) -> Ack | Nack:
         """Validate completely, then apply; a NACKed command changes nothing."""

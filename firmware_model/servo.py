@@ -274,6 +274,10 @@ class ArrayLaw(_Common):
         else:
             self._mul, self._sat = np.multiply, _identity
             self._sig, self._out = _identity, _identity
+            # Float64 has its own, leaner steps (no saturation); same results bit for bit.
+            self.estimate = self._estimate_float  # type: ignore[method-assign]
+            self.servo = self._servo_float  # type: ignore[method-assign]
+            self.current = self._current_float  # type: ignore[method-assign]
         for name, value in self.gains.items():
             if isinstance(value, np.ndarray) and value.shape != (n,):
                 raise ValueError(f"{name}: gain array shape {value.shape} != ({n},)")
@@ -429,6 +433,79 @@ class ArrayLaw(_Common):
             steps = (duty_q * self.arr + (1 << 15)) >> fx.SIG_FRAC_BITS
         else:
             steps = np.round(u / self.supply_v * self.arr).astype(np.int64)
+        if self.delay:
+            out = self._pipe[self._pipe_i].copy()
+            self._pipe[self._pipe_i] = steps
+            self._pipe_i = (self._pipe_i + 1) % self.delay
+        else:
+            out = steps
+        self._imeas = i_meas
+        enabled = np.asarray(enabled, dtype=bool)
+        if not enabled.all():
+            out = out * enabled
+            self.reset_control(~enabled)
+        self._steps = out
+        return out / self.arr
+
+    # -- the float64 steps: the same arithmetic as ScalarLaw, in the same order
+    def _estimate_float(self, raw_counts: npt.ArrayLike) -> None:
+        raw = np.asarray(raw_counts, dtype=np.int64)
+        acc = self._imeas * self._k_acc + self._ad
+        pred = self._ep + self._v + acc * 0.5
+        pred_int = np.floor(pred + 0.5).astype(np.int64)
+        delta = (raw - self.count - pred_int) % _REV
+        delta -= (delta >= _HALF_REV) * _REV
+        d = pred_int + delta
+        err = d - pred
+        self._ep = err * self._kpos_m1
+        self._v = self._v + acc + err * self._kvel
+        self._ad = self._ad + err * self._kdist
+        self.count = self.count + d
+        self.innovation_counts = delta
+        self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
+        self._raw_prev = raw
+        self.vel_raw_dps = d * self.dps_per_count_tick
+        self._vel = self._v * self._k_vel
+
+    def _servo_float(
+        self,
+        sp_pos_deg: float,
+        sp_vel_dps: float,
+        sp_acc_dps2: float,
+        v_clamp_dps: float,
+        i_limit_a: float,
+    ) -> None:
+        e = sp_pos_deg - self.count * AXIS_DEG_PER_COUNT
+        vr = _clip(e * self._kp_p + sp_vel_dps * self._vff, v_clamp_dps)
+        ev = vr - self._vel
+        u = ev * self._kp_v + self._i_v + sp_acc_dps2 * self._acc_ff
+        # Hold the integrator while the output is clamped and the error pushes further in.
+        hold = (np.abs(u) > i_limit_a) & (u * ev > 0.0)
+        i_v = np.where(hold, self._i_v, self._i_v + ev * self._ki_v_dt)
+        self._i_v = _clip(i_v, i_limit_a)
+        self._vr = vr
+        self._iref = _clip(u, i_limit_a)
+
+    def _current_float(
+        self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
+    ) -> npt.NDArray[np.float64]:
+        adc = np.asarray(adc_counts)
+        sign = np.sign(self._steps)
+        i_meas = adc * self.a_per_adc * sign
+        i_ref = self._iref
+        k = self._ref_i
+        ref_d = self._ref_pipe[k]
+        blind = (adc == 0) & (np.sign(ref_d) * sign <= 0)
+        i_meas = np.where(blind, ref_d, i_meas)
+        e = ref_d - i_meas
+        self._ref_pipe[k] = i_ref
+        self._ref_i = (k + 1) % (self.delay + 1)
+        u = e * self._kp_i + self._i_i + i_ref * self._r_ff + self._vel * self._emf_ff
+        ul = self.duty_limit * self.supply_v
+        hold = (np.abs(u) > ul) & (u * e > 0.0)
+        i_i = np.where(hold, self._i_i, self._i_i + e * self._ki_i_dt)
+        self._i_i = _clip(i_i, ul)
+        steps = np.round(_clip(u, ul) / self.supply_v * self.arr).astype(np.int64)
         if self.delay:
             out = self._pipe[self._pipe_i].copy()
             self._pipe[self._pipe_i] = steps
