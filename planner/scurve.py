@@ -18,9 +18,13 @@ rest at ``p1``:
   distance is monotonic on the branch that contains the optimum (``vp >= max(v0, 0)`` if the
   target lies beyond the stopping point, ``vp <= min(v0, 0)`` otherwise), and a safeguarded
   Newton iteration finds it to rounding. Otherwise (``a0 != 0`` or ``|v0| > v_max``) all
-  roots on ``[-v_max, v_max]`` are bracketed on a grid and the fastest is taken; this is a
-  valid profile (limits, continuity, exact end) but not proven time-optimal, and the
-  benchmark compares its duration with ruckig's.
+  roots on ``[-v_max, v_max]`` are bracketed on a grid, together with a second family that
+  starts with a phase of jerk +-j_max (the acceleration dips or grows first) followed by a
+  single pulse to rest, and the fastest candidate that keeps the speed within v_max (or
+  within what the start state makes unavoidable) is taken. This is a valid profile (limits,
+  continuity, exact end) but not proven time-optimal; on random starts whose speed can stay
+  within v_max its duration agrees with ruckig's to 1e-9 (tested to 1e-6 on 600 states), and
+  the benchmark reports the ratio.
 
 Cases, as for the trapezoid, in the frame where the start velocity is >= 0: ``"a"`` (cruise
 forward), ``"b"`` (forward, no cruise), ``"c"`` (reverse, no cruise), ``"d"`` (reverse,
@@ -46,6 +50,18 @@ def velocity_pulse(
     """
     segments, _, _, _ = time_optimal_segments(v0, v1, a0, 0.0, a_max, j_max)
     return segments
+
+
+def _excursion(segments: list[tuple[float, float]], v: float, a: float) -> float:
+    """An upper bound of the distance travelled (not displaced) along ``segments``: the
+    scale of the rounding error in their integrated distance."""
+    total = 0.0
+    for dt, j in segments:
+        if dt > 0.0:
+            total += dt * (abs(v) + dt * (0.5 * abs(a) + dt * abs(j) / 6.0))
+            v += dt * (a + 0.5 * dt * j)
+            a += dt * j
+    return total
 
 
 def _integrate(segments: list[tuple[float, float]], v: float, a: float) -> tuple[float, float]:
@@ -85,6 +101,8 @@ def _rest_distance(vp: float, v0: float, a_max: float, j_max: float) -> tuple[fl
 
 def _solve_monotone(d: float, lo: float, hi: float, v0: float, a_max: float, j_max: float) -> float:
     """Root of the increasing ``_rest_distance(vp) = d`` on ``[lo, hi]`` (safeguarded Newton)."""
+    if _rest_distance(lo, v0, a_max, j_max)[0] >= d:
+        return lo  # the direct stop (or rest-to-rest over zero distance): no second pulse
     x = hi
     for _ in range(200):
         f, df = _rest_distance(x, v0, a_max, j_max)
@@ -120,43 +138,137 @@ def _total(v0: float, a0: float, vp: float, a_max: float, j_max: float) -> tuple
     return d1 + d2, t1 + t2
 
 
-def _solve_general(
+def _refine(f, lo: float, hi: float, f_lo: float, f_hi: float) -> float:
+    """Root of ``f`` in the sign-changing bracket ``[lo, hi]`` (Illinois regula falsi: keeps
+    the bracket, so it also converges across the kinks between pulse shapes)."""
+    side = 0
+    x = 0.5 * (lo + hi)
+    for _ in range(200):
+        x = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+        if not lo < x < hi:
+            x = 0.5 * (lo + hi)
+            if not lo < x < hi:
+                break
+        fx = f(x)
+        if fx == 0.0:
+            return x
+        if (fx < 0.0) == (f_hi < 0.0):
+            hi, f_hi = x, fx
+            if side == 1:
+                f_lo *= 0.5
+            side = 1
+        else:
+            lo, f_lo = x, fx
+            if side == -1:
+                f_hi *= 0.5
+            side = -1
+        if hi - lo <= 4e-16 * max(abs(lo), abs(hi)):
+            break
+    return x
+
+
+def _roots(f, xs: list[float]) -> list[float]:
+    """All roots of ``f`` bracketed by consecutive points of the sorted grid ``xs``."""
+    fs = [f(x) for x in xs]
+    out = [x for x, fx in zip(xs, fs, strict=True) if fx == 0.0]
+    for x_lo, x_hi, f_lo, f_hi in zip(xs[:-1], xs[1:], fs[:-1], fs[1:], strict=True):
+        if f_lo != 0.0 and f_hi != 0.0 and (f_lo < 0.0) != (f_hi < 0.0):
+            out.append(_refine(f, x_lo, x_hi, f_lo, f_hi))
+    return out
+
+
+def _peak_speed(v: float, a: float, segments: list[tuple[float, float]]) -> float:
+    """The largest |v| along jerk ``segments`` from (v, a) (extremes sit where a = 0)."""
+    peak = abs(v)
+    for dt, j in segments:
+        if dt <= 0.0:
+            continue
+        if j != 0.0:
+            tau = -a / j
+            if 0.0 < tau < dt:
+                peak = max(peak, abs(v + tau * (a + 0.5 * tau * j)))
+        v += dt * (a + 0.5 * dt * j)
+        a += dt * j
+        peak = max(peak, abs(v))
+    return peak
+
+
+def _cruise_of(segments: list[tuple[float, float]], v: float, a: float) -> tuple[float, float]:
+    """(velocity, duration) of the zero-jerk, zero-acceleration phase in ``segments``, or
+    (velocity at the last a = 0 crossing, 0) when there is none; for naming the case."""
+    v_last = v
+    for dt, j in segments:
+        if dt <= 0.0:
+            continue
+        if j == 0.0 and a == 0.0:
+            return v, dt
+        if j != 0.0 and 0.0 < -a / j < dt:
+            tau = -a / j
+            v_last = v + tau * (a + 0.5 * tau * j)
+        v += dt * (a + 0.5 * dt * j)
+        a += dt * j
+    return v_last, 0.0
+
+
+def _candidates_general(
     d: float, v0: float, a0: float, v_max: float, a_max: float, j_max: float
-) -> tuple[float, float]:
-    """(vp, cruise_time) minimising the duration over all bracketed roots; any a0, v0."""
-    candidates: list[tuple[float, float, float]] = []  # (duration, vp, t_cruise)
+) -> list[tuple[float, list[tuple[float, float]]]]:
+    """(duration, segments) of every profile found that ends at rest at distance ``d``.
+
+    Family A: velocity pulse to a peak vp (a = 0), cruise if |vp| = v_max, pulse to rest;
+    all roots over vp on a grid of [-v_max, v_max]. Family B: a first phase of jerk +-j_max
+    for tau (letting the acceleration dip or grow), then one pulse to rest; all roots over
+    tau. B covers optima that never pass through a = 0 before the end (found against ruckig).
+    """
+    out: list[tuple[float, list[tuple[float, float]]]] = []
+
+    nearest: list[tuple[float, float, list[tuple[float, float]]]] = []
+
+    def keep(segs: list[tuple[float, float]]) -> None:
+        # A root at a jump of the distance function is not a root: check the residual.
+        dist, dur = _integrate(segs, v0, a0)
+        if abs(dist - d) <= 1e-9 * max(abs(d), _excursion(segs, v0, a0)):
+            out.append((dur, segs))
+        else:
+            nearest.append((abs(dist - d), dur, segs))
+
+    def family_a(vp: float, t_cruise: float) -> None:
+        up, down = _pulses(v0, a0, vp, a_max, j_max)
+        keep(up + [(t_cruise, 0.0)] + down)
+
     for s in (1.0, -1.0):
-        dist, dur = _total(v0, a0, s * v_max, a_max, j_max)
+        dist, _ = _total(v0, a0, s * v_max, a_max, j_max)
         t_cruise = (d - dist) / (s * v_max)
         if t_cruise >= 0.0:
-            candidates.append((dur + t_cruise, s * v_max, t_cruise))
-    n = 64
+            family_a(s * v_max, t_cruise)
+    n = 32
     grid = {-v_max + 2.0 * v_max * k / n for k in range(n + 1)}
     v_nat = v0 + a0 * abs(a0) / (2.0 * j_max)
     grid.update(min(max(x, -v_max), v_max) for x in (0.0, v0, v_nat))
-    xs = sorted(grid)
-    fs = [_total(v0, a0, x, a_max, j_max)[0] - d for x in xs]
-    for x_lo, x_hi, f_lo, f_hi in zip(xs[:-1], xs[1:], fs[:-1], fs[1:], strict=True):
-        if f_lo == 0.0:
-            candidates.append((_total(v0, a0, x_lo, a_max, j_max)[1], x_lo, 0.0))
-        if (f_lo < 0.0) == (f_hi < 0.0) or f_hi == 0.0:
+    for vp in _roots(lambda x: _total(v0, a0, x, a_max, j_max)[0] - d, sorted(grid)):
+        family_a(vp, 0.0)
+
+    for s in (1.0, -1.0):
+        tau_max = (a_max - s * a0) / j_max
+        if not tau_max > 0.0:
             continue
-        lo, hi, flo = x_lo, x_hi, f_lo
-        for _ in range(100):  # bisection: robust on the kinks between pulse shapes
-            mid = 0.5 * (lo + hi)
-            if mid in (lo, hi):
-                break
-            fm = _total(v0, a0, mid, a_max, j_max)[0] - d
-            if (fm < 0.0) == (flo < 0.0):
-                lo, flo = mid, fm
-            else:
-                hi = mid
-        x = 0.5 * (lo + hi)
-        candidates.append((_total(v0, a0, x, a_max, j_max)[1], x, 0.0))
-    if fs[-1] == 0.0:
-        candidates.append((_total(v0, a0, xs[-1], a_max, j_max)[1], xs[-1], 0.0))
-    _, vp, t_cruise = min(candidates)
-    return vp, t_cruise
+
+        def pre(tau: float, s: float = s) -> list[tuple[float, float]]:
+            a1 = a0 + s * j_max * tau
+            v1 = v0 + tau * (a0 + 0.5 * s * j_max * tau)
+            return [(tau, s * j_max)] + velocity_pulse(v1, a1, 0.0, a_max, j_max)
+
+        def f(tau: float, pre=pre) -> float:
+            return _integrate(pre(tau), v0, a0)[0] - d
+
+        taus = [tau_max * k / 16 for k in range(17)]
+        for tau in _roots(f, taus):
+            keep(pre(tau))
+    if not out and nearest:
+        # Only at the edge of floating point (subnormal states): the closest candidate.
+        _, dur, segs = min(nearest, key=lambda c: c[0])
+        out.append((dur, segs))
+    return out
 
 
 def plan_scurve(
@@ -213,10 +325,17 @@ def plan_scurve(
                 lo, hi = -v_max, min(v0, 0.0)
             vp = _solve_monotone(d, lo, hi, v0, a_max, j_max)
             t_cruise = 0.0
+        up, down = _pulses(v0, a0, vp, a_max, j_max)
+        segments = up + [(t_cruise, 0.0)] + down
     else:
-        vp, t_cruise = _solve_general(d, v0, a0, v_max, a_max, j_max)
-    up, down = _pulses(v0, a0, vp, a_max, j_max)
-    segments = up + [(t_cruise, 0.0)] + down
+        # Keep candidates whose speed stays within v_max, or within what the start state
+        # makes unavoidable; take the fastest.
+        v_allowed = max(v_max, abs(v0), abs(v0 + a0 * abs(a0) / (2.0 * j_max))) * (1 + 1e-12)
+        found = _candidates_general(d, v0, a0, v_max, a_max, j_max)
+        ok = [c for c in found if _peak_speed(v0, a0, c[1]) <= v_allowed]
+        _, segments = min(ok or found, key=lambda c: c[0])
+        peak_v, t_cruise = _cruise_of(segments, v0, a0)
+        vp = peak_v
     if all(dt <= 0.0 for dt, _ in segments):
         case = "hold"
     else:

@@ -65,3 +65,25 @@ def test_scurve_matches_ruckig_from_rest_and_from_any_v0_with_a0_zero():
         theirs = ruckig_duration(p0, p1, v0, 0.0, v_max, a_max, j_max)
         worst = max(worst, abs(ours - theirs) / theirs)
     assert worst <= 1e-6
+
+
+def test_scurve_with_start_acceleration_matches_ruckig_when_limits_can_hold():
+    """a0 != 0: not required to be optimal, but it is where the start state lets the speed
+    stay within v_max (elsewhere ruckig's brake pre-profile differs by design)."""
+    rng = random.Random(11)
+    compared = 0
+    worst = 0.0
+    while compared < 600:
+        p0, p1, v0, _, v_max, a_max = random_state(rng, v0_range=1.0, with_v1=False)
+        j_max = 10 ** rng.uniform(-1, 3)
+        a0 = rng.uniform(-1.0, 1.0) * a_max
+        if abs(v0 + a0 * abs(a0) / (2 * j_max)) > v_max:
+            continue
+        try:
+            theirs = ruckig_duration(p0, p1, v0, 0.0, v_max, a_max, j_max, a0=a0)
+        except ruckig.RuckigError:
+            continue  # ruckig gives up on a few extreme states
+        ours = plan_scurve(p0, p1, v_max=v_max, a_max=a_max, j_max=j_max, v0=v0, a0=a0)
+        worst = max(worst, abs(ours.duration - theirs) / theirs)
+        compared += 1
+    assert worst <= 1e-6
