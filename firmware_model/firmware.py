@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from firmware_model.params import FirmwareParams
-from firmware_model.servo import ArrayLaw, ScalarLaw
+from firmware_model.servo import ArrayLaw, ScalarFixedLaw, ScalarLaw
 from firmware_model.stability import unstable_reason
 from planner.online import OnlinePlanner
 from serial_protocol import frame
@@ -115,10 +115,12 @@ class Firmware:
         self.batch = batch
         self._scalar = batch is None
         fixed = params.servo.arithmetic == "fixed"
-        self._array_law = fixed or batch is not None
-        self.law: ScalarLaw | ArrayLaw
+        self._array_law = batch is not None
+        self.law: ScalarLaw | ScalarFixedLaw | ArrayLaw
         if self._array_law:
-            self.law = ArrayLaw(params, batch or 1, fixed=fixed)
+            self.law = ArrayLaw(params, batch, fixed=fixed)
+        elif fixed:
+            self.law = ScalarFixedLaw(params)
         else:
             self.law = ScalarLaw(params)
         n = batch or 1
@@ -260,8 +262,6 @@ class Firmware:
             law.reset_control(trip)
             duty = np.where(trip, 0.0, duty)
             enabled = self._enabled.copy()
-        if self._scalar:
-            return float(duty[0]), bool(enabled[0])
         return duty, enabled
 
     def signals(self) -> dict[str, Any]:
@@ -296,10 +296,6 @@ class Firmware:
             "state": state,
             "fault": fault,
         }
-        if self._scalar and self._array_law:
-            for key in ("pos_deg", "vel_dps", "vel_raw_dps", "current_meas_a",
-                        "current_ref_a", "duty"):  # fmt: skip
-                out[key] = float(out[key][0])
         return out
 
     @property

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
-from firmware_model.servo import ArrayLaw, ScalarLaw
+from firmware_model.servo import ArrayLaw, ScalarFixedLaw, ScalarLaw
 from firmware_model.units import AXIS_DEG_PER_COUNT
 
 
@@ -169,15 +169,43 @@ def test_scalar_and_float_batch_laws_agree_bit_for_bit(delay, make_bench):
     for k in range(400):
         x += 30.0 * math.sin(k / 40.0) + rng.normal()
         raw = _counts(x)
-        adc = int(rng.integers(0, 800))
+        adc = int(rng.integers(0, 800)) if k % 5 else 0
         sp = (0.5 * math.sin(k / 50.0), 10.0 * math.cos(k / 50.0), -0.2 * math.sin(k / 50.0))
+        enabled = k % 89 != 0
         scalar.estimate(raw)
         batch.estimate(np.array([raw]))
         scalar.servo(*sp, 990.0, 5.0)
         batch.servo(*sp, 990.0, 5.0)
-        d1 = scalar.current(adc, True)
-        d2 = batch.current(np.array([adc]), np.array([True]))
+        d1 = scalar.current(adc, enabled)
+        d2 = batch.current(np.array([adc]), np.array([enabled]))
         assert d1 == d2[0]
+        assert scalar.vel_dps == batch.vel_dps[0]
+        assert scalar.current_ref_a == batch.current_ref_a[0]
+        assert scalar.current_meas_a == batch.current_meas_a[0]
+
+
+def test_scalar_and_batch_fixed_point_laws_agree_bit_for_bit():
+    params = FirmwareParams(servo=ServoParams(arithmetic="fixed"))
+    rng = np.random.default_rng(11)
+    scalar = ScalarFixedLaw(params)
+    batch = ArrayLaw(params, 1, fixed=True)
+    scalar.reset(100)
+    batch.reset([100])
+    x = 100.0
+    for k in range(400):
+        x += 30.0 * math.sin(k / 40.0) + rng.normal()
+        raw = _counts(x)
+        adc = int(rng.integers(0, 800)) if k % 7 else 0
+        sp = (0.5 * math.sin(k / 50.0), 10.0 * math.cos(k / 50.0), -0.2 * math.sin(k / 50.0))
+        enabled = k % 97 != 0
+        scalar.estimate(raw)
+        batch.estimate(np.array([raw]))
+        scalar.servo(*sp, 990.0, 5.0)
+        batch.servo(*sp, 990.0, 5.0)
+        d1 = scalar.current(adc, enabled)
+        d2 = batch.current(np.array([adc]), np.array([enabled]))
+        assert d1 == d2[0]
+        assert scalar.count == batch.count[0]
         assert scalar.vel_dps == batch.vel_dps[0]
         assert scalar.current_ref_a == batch.current_ref_a[0]
         assert scalar.current_meas_a == batch.current_meas_a[0]
