@@ -89,6 +89,8 @@ class OnlinePlanner:
             ValueError: bad limits or target (named, with the value), or ``t_s`` earlier
                 than the start of the active profile.
         """
+        if not math.isfinite(target):
+            raise ValueError(f"target = {target!r}: must be finite")
         p, v, a = self._state(t_s)
         if self.kind == "trapezoid":
             profile = plan_trapezoid(p, target, v_max=v_max, a_max=a_max, v0=v)

@@ -40,8 +40,10 @@ class Profile:
     Attributes:
         kind: ``"trapezoid"`` (piecewise-constant acceleration) or ``"scurve"``
             (piecewise-constant jerk).
-        case: which shape the planner chose; see the planner's docstring
-            (``"classic"``, ``"triangle"``, ``"a"``..``"d"``, ``"brake+c"``, ``"hold"``, ...).
+        case: which shape the planner chose, explained in the planner's docstring:
+            ``"classic"``, ``"triangle"``, ``"a"``..``"d"`` (seed 000), ``"brake+<case>"``
+            (|v0| > v_max), ``"stop"``, ``"hold"`` (no motion), ``"1"``..``"7"`` (seed 001
+            segments).
         t0: start time of each phase, shape ``(n,)`` as a tuple; ``t0[0] == 0``.
         p, v, a: state at the start of each phase, tuples of length ``n``.
         j: jerk in each phase (all zero for a trapezoid), tuple of length ``n``.

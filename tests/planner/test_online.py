@@ -101,6 +101,8 @@ def test_bad_arguments():
         op.command(4.0, 1.0, v_max=1.0, a_max=1.0, j_max=1.0)
     with pytest.raises(ValueError, match="v_max = -1.0"):
         op.command(6.0, 1.0, v_max=-1.0, a_max=1.0, j_max=1.0)
+    with pytest.raises(ValueError, match="target = inf"):
+        op.command(6.0, math.inf, v_max=1.0, a_max=1.0, j_max=1.0)
     with pytest.raises(ValueError, match="p0 = nan"):
         op.reset(math.nan)
 
