@@ -153,7 +153,8 @@ def plan_trapezoid(
     p0, p1, v0, v1 = float(p0), float(p1), float(v0), float(v1)
     v_max, a_max = float(v_max), float(a_max)
     segments, braked, sigma, cruise = time_optimal_segments(p0, p1, v0, v1, v_max, a_max)
-    if all(dt <= 0.0 for dt, _ in segments):
+    # The last three segments are ramp, cruise, ramp; a brake phase is never empty.
+    if not (braked or segments[-1][0] > 0.0 or segments[-2][0] > 0.0 or segments[-3][0] > 0.0):
         case = "hold"
     else:
         # The case letter is read in the frame where the start velocity is >= 0 (the seed's
