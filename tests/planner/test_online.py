@@ -112,17 +112,22 @@ def test_bad_arguments():
     kind=st.sampled_from(["trapezoid", "scurve"]),
     targets=st.lists(st.floats(-5e3, 5e3), min_size=1, max_size=5),
     gaps=st.lists(st.floats(0.0, 8.0), min_size=5, max_size=5),
+    scales=st.lists(st.floats(0.3, 1.0), min_size=5, max_size=5),
     v_max=st.floats(10.0, 1000.0),
     a_max=st.floats(10.0, 500.0),
     j_max=st.floats(10.0, 5000.0),
 )
-def test_property_replan_at_random_instants_is_continuous(kind, targets, gaps, v_max, a_max, j_max):
+def test_property_replan_at_random_instants_is_continuous(
+    kind, targets, gaps, scales, v_max, a_max, j_max
+):
+    """Random targets at random instants, each with limits lowered by a random factor
+    (the start may then be above the new v_max or a_max): no jump, and the move ends."""
     op = OnlinePlanner(kind)
     op.reset(0.0)
     t_s = 0.0
-    for target, gap in zip(targets, gaps, strict=False):
+    for target, gap, k in zip(targets, gaps, scales, strict=False):
         before = op.sample(t_s)
-        prof = op.command(t_s, target, v_max=v_max, a_max=a_max, j_max=j_max)
+        prof = op.command(t_s, target, v_max=k * v_max, a_max=k * a_max, j_max=k * j_max)
         after = op.sample(t_s)
         scale = max(1.0, abs(before[0]))
         assert after[0] == pytest.approx(before[0], abs=1e-12 * scale)
@@ -130,6 +135,10 @@ def test_property_replan_at_random_instants_is_continuous(kind, targets, gaps, v
         if kind == "scurve":
             assert after[2] == pytest.approx(before[2], abs=1e-9 * a_max)
         assert prof.p1 == target
+        # Within the new profile: |a| never above max(new a_max, |a at the replan|).
+        t = np.linspace(0.0, prof.duration, 501)
+        _, _, acc = prof.at(t)
+        assert np.max(np.abs(acc)) <= max(k * a_max, abs(before[2])) * (1 + 1e-9)
         t_s += gap
     end = op.profile
     assert op.sample(t_s + end.duration + 1.0) == (end.p1, 0.0, 0.0)
