@@ -437,3 +437,31 @@ def test_array_gains_need_a_batch():
         Firmware(params)
     with pytest.raises(ValueError, match="batch"):
         Firmware(params, batch=3)
+
+
+@pytest.mark.parametrize(("multiple", "delay"), [(1, 0), (4, 1), (2, 2)])
+def test_current_loop_rate_and_compute_delay_variants_track(make_bench, multiple, delay):
+    params = FirmwareParams(
+        servo=ServoParams(current_loop_multiple=multiple, compute_delay_ticks=delay)
+    )
+    b = make_bench(params)
+    b.run(400, {5: [move(1, 30.0)]})
+    assert b.fw.counters["faults"] == 0
+    assert np.abs(b.arr("sp_pos_deg") - b.arr("pos_deg")).max() < 0.3
+    assert abs(b.arr("true_axis_deg")[-1, 0] - 30.0) < 0.02
+    assert len(b.enables) == 400 * multiple
+
+
+def test_planned_move_after_a_step_move_starts_from_the_axis(make_bench):
+    b = make_bench()
+    b.run(
+        300,
+        {5: [move(1, 200.0, v=300.0, profile=Profile.STEP)], 100: [move(2, 0.0, v=300.0)]},
+    )
+    assert acks(b) == [(1, 2), (2, 2)]
+    sp, pos = b.arr("sp_pos_deg"), b.arr("pos_deg")
+    # At the interrupt the setpoint leaves the step target and restarts where the axis is.
+    assert sp[99] == 200.0
+    assert abs(sp[100] - pos[100]) < 0.01
+    assert b.arr("sp_vel_dps")[100] <= 0.0
+    assert sp[-1] == 0.0
