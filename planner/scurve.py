@@ -330,10 +330,14 @@ def plan_scurve(
     else:
         # Keep candidates whose speed stays within v_max, or within what the start state
         # makes unavoidable; take the fastest.
-        v_allowed = max(v_max, abs(v0), abs(v0 + a0 * abs(a0) / (2.0 * j_max))) * (1 + 1e-12)
+        v_allowed = max(v_max, abs(v0), abs(v0 + a0 * abs(a0) / (2.0 * j_max))) * (1 + 1e-9)
         found = _candidates_general(d, v0, a0, v_max, a_max, j_max)
-        ok = [c for c in found if _peak_speed(v0, a0, c[1]) <= v_allowed]
-        _, segments = min(ok or found, key=lambda c: c[0])
+        peaks = [_peak_speed(v0, a0, segs) for _, segs in found]
+        ok = [c for c, peak in zip(found, peaks, strict=True) if peak <= v_allowed]
+        if ok:
+            _, segments = min(ok, key=lambda c: c[0])
+        else:  # not expected (a cruise candidate exists); the least excess speed then
+            _, segments = found[min(range(len(found)), key=peaks.__getitem__)]
         peak_v, t_cruise = _cruise_of(segments, v0, a0)
         vp = peak_v
     if all(dt <= 0.0 for dt, _ in segments):

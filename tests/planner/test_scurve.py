@@ -100,8 +100,8 @@ def test_bad_state():
     v_max=st.floats(0.1, 100.0),
     a_max=st.floats(0.1, 100.0),
     j_max=st.floats(0.1, 1000.0),
-    v0_frac=st.floats(-1.0, 1.0),
-    a0_frac=st.floats(-1.0, 1.0),
+    v0_frac=st.floats(-2.0, 2.0),
+    a0_frac=st.floats(-1.5, 1.5),
     with_a0=st.booleans(),
 )
 def test_property_valid_profile(p0, dist, v_max, a_max, j_max, v0_frac, a0_frac, with_a0, check):
@@ -111,5 +111,6 @@ def test_property_valid_profile(p0, dist, v_max, a_max, j_max, v0_frac, a0_frac,
     # With a0 pushing outwards, overshooting v_max is unavoidable: the bound is where the
     # acceleration can first be brought to zero.
     v_natural = v0 + a0 * abs(a0) / (2 * j_max)
-    check(prof, v_max=v_max, a_max=a_max, j_max=j_max, v_start_max=max(v_max, abs(v_natural)))
+    v_start_max = max(v_max, abs(v0), abs(v_natural))
+    check(prof, v_max=v_max, a_max=a_max, j_max=j_max, v_start_max=v_start_max)
     assert prof.at(0.0)[2] == pytest.approx(a0, abs=1e-12 * a_max)
