@@ -1,0 +1,50 @@
+"""``turntable-sim reproduce [--out DIR] [--quick]``: run the paper's experiments and the
+extras, write the figures and REPORT.md (see README, "Reproduce the paper")."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+HELP = "reproduce the paper's Fig. 6-8 / Table 1 and seed 002's tables: PNGs and REPORT.md"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--out", type=Path, default=Path("reproduce_out"),
+        help="output directory (default: ./reproduce_out)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--quick", action="store_true",
+        help="every time divided by 4 (same planning problems, about 4x faster); for a look",
+    )  # fmt: skip
+    parser.add_argument(
+        "--paper-only", action="store_true",
+        help="only Fig. 6-8 (no seed 002 tables, S-curve or look-ahead runs)",
+    )  # fmt: skip
+    parser.add_argument("--quiet", action="store_true", help="no progress display or summary")
+
+
+def execute(args: argparse.Namespace):
+    """Run the reproduction for parsed ``args``; returns ``sim.reproduce.ReproduceOutput``."""
+    from sim.reproduce import reproduce
+
+    return reproduce(
+        args.out, quick=args.quick, extras=not args.paper_only, show_progress=not args.quiet
+    )
+
+
+def main(args: argparse.Namespace) -> int:
+    from sim.progress import format_duration
+
+    result = execute(args)
+    if not args.quiet:
+        print(
+            f"reproduce: {result.simulated_s:.0f} s simulated in "
+            f"{format_duration(result.wall_s)} of wall time",
+            file=sys.stderr,
+        )
+        for path in result.paths:
+            print(f"wrote {path}")
+    return 0

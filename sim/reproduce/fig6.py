@@ -1,0 +1,81 @@
+"""Seed 000, Fig. 6: the step command S = 3e6 (3000 axis degrees) without planning and
+with the trapezoid planner.
+
+Without planning the setpoint jumps to the target (``Profile.STEP``): the position loop
+saturates the velocity command at v_max and the current loop at the 5 A limit, so the axis
+accelerates and brakes as hard as the electromechanics allow, and overshoots. With the
+trapezoid the velocity command ramps at a_max.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from serial_protocol.messages import Profile
+from sim.reproduce.experiments import Runner, Trace, load, replace_move
+from sim.reproduce.metrics import RunMetrics, measure
+from sim.reproduce.plots import Curve, paper_figure
+
+__all__ = ["PAPER_ARRIVAL_S", "Fig6Result", "plot", "run", "velocity_jumps"]
+
+# Seed 000, section 5: "the velocity jumps at 0 s and at 3.5 s, with a large overshoot at
+# 3.5 s" (no number is printed for the overshoot).
+PAPER_ARRIVAL_S = 3.5
+
+
+@dataclass(frozen=True)
+class Fig6Result:
+    step: Trace
+    planned: Trace
+    step_metrics: RunMetrics
+    planned_metrics: RunMetrics
+    time_scale: float
+
+    @property
+    def target_deg(self) -> float:
+        return self.step.command_target_deg[-1]
+
+
+def velocity_jumps(trace: Trace, min_dps2: float = 1000.0) -> list[tuple[float, float]]:
+    """``(t_s, acceleration)`` where the measured velocity changes faster than
+    ``min_dps2`` (grouped: the first frame of each burst), the paper's "velocity jumps"."""
+    acc = np.diff(trace.vel_dps) / np.diff(trace.t_s)
+    fast = np.flatnonzero(np.abs(acc) >= min_dps2)
+    out: list[tuple[float, float]] = []
+    last = -(10**9)
+    for i in fast:
+        if i > last + 25:  # a new burst after 50 ms of calm
+            out.append((float(trace.t_s[i]), float(acc[i])))
+        last = i
+    return out
+
+
+def run(runner: Runner) -> Fig6Result:
+    """Both runs, always as written (also under ``--quick``): a step command is shaped by
+    the motor's limits, not by a planner, so a time-scaled copy would not be the same
+    experiment."""
+    exp = load("fig6")
+    planned_exp = replace_move(exp, -1, profile=Profile.TRAPEZOID)
+    step = runner.run("fig6 no planning (step)", exp)
+    planned = runner.run("fig6 trapezoid", planned_exp)
+    limit = exp.bench.firmware.limits.current_limit_a
+    return Fig6Result(step, planned, measure(step, limit), measure(planned, limit), 1.0)
+
+
+def plot(result: Fig6Result, path: str | Path, current_limit_a: float) -> Path:
+    """Fig. 6 drawn like the paper's: both runs on one set of axes."""
+    scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
+    a_max = result.planned.command_a_max_dps2[-1]
+    return paper_figure(
+        [
+            Curve(result.step, "without planning (step command)", "tab:red"),
+            Curve(result.planned, f"trapezoid planning (a_max {a_max:g} deg/s^2)", "tab:blue"),
+        ],
+        path,
+        title=f"Fig. 6: step command S = 3e6 mdeg, with and without planning{scale}",
+        current_limit_a=current_limit_a,
+        note="Without planning the setpoint is the target itself (dashed line at 0 deg/s).",
+    )

@@ -1,0 +1,110 @@
+"""Everything ``turntable-sim reproduce`` does, callable from Python: run the experiments,
+draw the figures, write REPORT.md.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sim.reproduce import fig6, fig7, fig8, lookahead_demo, report, scurve_extras, seed002
+from sim.reproduce.experiments import Runner, load
+
+__all__ = ["FIGURES", "ReproduceOutput", "reproduce"]
+
+FIGURES = (
+    "fig6.png",
+    "fig7.png",
+    "fig8.png",
+    "fig7_scurve.png",
+    "fig8_scurve.png",
+    "lookahead.png",
+)
+# fig6 (2) + fig7 (4) + fig8 (1) + seed 002 (1) + S-curve fig7 (4) + fig8 (1) + look-ahead (2)
+_RUNS_ALL = 15
+_RUNS_PAPER = 7
+
+
+@dataclass(frozen=True)
+class ReproduceOutput:
+    """What was written (``paths``), the results behind it (``inputs``) and the wall time."""
+
+    out_dir: Path
+    paths: tuple[Path, ...]
+    inputs: report.ReportInputs
+    wall_s: float
+    simulated_s: float
+
+
+def reproduce(
+    out_dir: str | Path,
+    *,
+    quick: bool = False,
+    extras: bool = True,
+    show_progress: bool = True,
+    stream: Any = None,
+) -> ReproduceOutput:
+    """Run every experiment and write the figures and REPORT.md into ``out_dir``.
+
+    Args:
+        quick: the time-scaled forms (``experiments.scale_quick``), four times shorter.
+        extras: also seed 002's tables, the S-curve runs and the look-ahead program.
+        show_progress: a progress display per run on ``stream`` (default stderr).
+    """
+    wall0 = time.monotonic()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runner = Runner(
+        quick=quick,
+        show_progress=show_progress,
+        total_runs=_RUNS_ALL if extras else _RUNS_PAPER,
+        stream=stream,
+    )
+    bench = load("fig8").bench
+    limit_a = bench.firmware.limits.current_limit_a
+    r6 = fig6.run(runner)
+    r7 = fig7.run(runner)
+    r8 = fig8.run(runner)
+    paths = [
+        fig6.plot(r6, out / "fig6.png", limit_a),
+        fig7.plot(r7, out / "fig7.png", limit_a),
+        fig8.plot(r8, out / "fig8.png", limit_a),
+    ]
+    s2 = sc = la = None
+    if extras:
+        s2 = seed002.run(runner)
+        sc = scurve_extras.run(runner, r7, r8)
+        scale = " (--quick: times / 4, positions / 16)" if quick else ""
+        paths.append(
+            fig7.plot(
+                sc.fig7,
+                out / "fig7_scurve.png",
+                limit_a,
+                title=f"Fig. 7 with the S-curve planner (j_max {sc.j_max_dps3:g} deg/s^3){scale}",
+            )
+        )
+        paths.append(fig8.plot(sc.fig8, out / "fig8_scurve.png", limit_a))
+        la = lookahead_demo.run(runner)
+        paths.append(lookahead_demo.plot(la, out / "lookahead.png", limit_a))
+    wall_s = time.monotonic() - wall0
+    inputs = report.ReportInputs(
+        fig6=r6,
+        fig7=r7,
+        fig8=r8,
+        seed002=s2,
+        scurve=sc,
+        lookahead=la,
+        baud=int(bench.firmware.telemetry.baud),
+        tick_hz=float(bench.firmware.servo.tick_hz),
+        current_limit_a=limit_a,
+        quick=quick,
+        wall_s=wall_s,
+        figures=tuple(p.name for p in paths),
+    )
+    report_path = out / "REPORT.md"
+    report.write_report(inputs, report_path)
+    paths.append(report_path)
+    simulated_s = runner.ticks * bench.dt_s
+    return ReproduceOutput(out, tuple(paths), inputs, wall_s, simulated_s)
