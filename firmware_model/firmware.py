@@ -131,6 +131,10 @@ class Firmware:
         # Per member: latched fault code and bridge enable.
         self._fault = np.zeros(n, dtype=np.int64)
         self._enabled = np.zeros(n, dtype=bool)
+        # Bumped whenever _fault or _enabled change: the batch state/fault arrays are cached.
+        self._flags_version = 0
+        self._state_cache: tuple[Any, Any] = (None, None)
+        self._fault_cache: tuple[Any, Any] = (None, None)
         self._fault_s = 0  # member 0 / scalar copies for the fast path
         self._enabled_s = False
         self._oc_ticks = np.zeros(n, dtype=np.int64)
@@ -254,18 +258,31 @@ class Firmware:
         enabled = self._enabled.copy()
         duty = law.current(adc_counts, enabled)
         i_meas = law.current_meas_a
-        over = enabled & (np.abs(i_meas) > self.params.safety.over_current_a)
+        abs_i = np.abs(i_meas)
+        if abs_i.max() <= self._oc_thr_a:  # the common case: one reduction
+            if self._oc_s:
+                self._oc_ticks[:] = 0
+                self._oc_s = 0
+            return duty, enabled
+        over = enabled & (abs_i > self._oc_thr_a)
         self._oc_ticks = np.where(over, self._oc_ticks + 1, 0)
-        trip = self._oc_ticks >= self.params.safety.over_current_ticks
+        self._oc_s = 1
+        trip = self._oc_ticks >= self._oc_samples
         if trip.any():
             self._trip(trip, Fault.OVER_CURRENT, i_meas)
             law.reset_control(trip)
-            duty = np.where(trip, 0.0, duty)
+            duty = law.duty
             enabled = self._enabled.copy()
         return duty, enabled
 
     def signals(self) -> dict[str, Any]:
-        """The firmware's view of this tick (floats, or ``(N,)`` arrays in batch)."""
+        """The firmware's view of this tick (floats, or ``(N,)`` arrays in batch).
+
+        Keys: ``sp_pos_deg, sp_vel_dps, sp_acc_dps2`` (shared setpoint, floats), ``pos_deg,
+        vel_dps`` (estimated), ``vel_raw_dps`` (plain differencing), ``current_meas_a``,
+        ``current_ref_a``, ``duty``, ``state``, ``fault``. Batch arrays are not updated in
+        place (each tick makes new ones); ``state`` and ``fault`` arrays are read-only.
+        """
         law = self.law
         if not self._array_law:
             return {
@@ -306,13 +323,24 @@ class Firmware:
             if self._fault_s:
                 return _FAULT
             return motion if self._enabled_s else _DISABLED
-        st = np.where(self._enabled, motion, _DISABLED)
-        return np.where(self._fault != 0, _FAULT, st)
+        key = (self._flags_version, motion)
+        if self._state_cache[0] != key:
+            st = np.where(self._enabled, motion, _DISABLED)
+            st = np.where(self._fault != 0, _FAULT, st)
+            st.setflags(write=False)
+            self._state_cache = (key, st)
+        return self._state_cache[1]
 
     @property
     def fault(self) -> Any:
         """Latched ``Fault`` code (int; ``(N,)`` array in batch)."""
-        return self._fault_s if self._scalar else self._fault.copy()
+        if self._scalar:
+            return self._fault_s
+        if self._fault_cache[0] != self._flags_version:
+            fault = self._fault.copy()
+            fault.setflags(write=False)
+            self._fault_cache = (self._flags_version, fault)
+        return self._fault_cache[1]
 
     @property
     def telemetry_decimation(self) -> int:
@@ -345,6 +373,7 @@ class Firmware:
     def _enable(self) -> None:
         ok = self._fault == 0
         self._enabled = ok.copy()
+        self._flags_version += 1
         self._enabled_s = bool(ok[0])
         if self._array_law:
             self.law.reset_control()
@@ -355,6 +384,7 @@ class Firmware:
 
     def _disable(self) -> None:
         self._enabled[:] = False
+        self._flags_version += 1
         self._enabled_s = False
         self._hold_here()
 
@@ -439,6 +469,7 @@ class Firmware:
             return
         self._fault[mask] = int(fault)
         self._enabled[mask] = False
+        self._flags_version += 1
         self._enabled_s = bool(self._enabled[0])
         self._fault_s = int(self._fault[0])
         hits = int(mask.sum())
@@ -651,6 +682,7 @@ class Firmware:
     def _cmd_clear_fault(self, m: ClearFault) -> NackCode | None:
         if (self._fault != 0).any():
             self._fault[:] = 0
+            self._flags_version += 1
             self._fault_s = 0
             self._oc_ticks[:] = 0
             self._oc_s = 0

@@ -497,6 +497,7 @@ class ArrayLaw(_Common):
     def reset(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.broadcast_to(np.asarray(raw_counts, dtype=np.int64), (self.n,)).copy()
         self.count = raw.copy()
+        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self._raw_prev = raw
         zero = np.zeros(self.n, dtype=np.int64 if self.fixed else float)
         self._ep = zero.copy()
@@ -518,6 +519,7 @@ class ArrayLaw(_Common):
             self._iref = np.zeros(self.n, dtype=dtype)
             self._imeas = np.zeros(self.n, dtype=dtype)
             self._steps = np.zeros(self.n, dtype=np.int64)
+            self.duty = np.zeros(self.n)
             self._pipe = np.zeros((max(self.delay, 1), self.n), dtype=np.int64)
             self._pipe_i = 0
             self._ref_pipe = np.zeros((self.delay + 1, self.n), dtype=dtype)
@@ -527,6 +529,7 @@ class ArrayLaw(_Common):
             arr[mask] = 0
         self._pipe[:, mask] = 0
         self._ref_pipe[:, mask] = 0
+        self.duty = np.where(mask, 0.0, self.duty)  # a new array: callers may hold the old
 
     # -- the three steps
     def estimate(self, raw_counts: npt.ArrayLike) -> None:
@@ -550,6 +553,7 @@ class ArrayLaw(_Common):
         self._v = self._sat(self._sat(self._v + acc) + self._mul(err, self._kvel))
         self._ad = self._sat(self._ad + self._mul(err, self._kdist))
         self.count = self.count + d
+        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self.innovation_counts = delta
         self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
         self._raw_prev = raw
@@ -626,7 +630,8 @@ class ArrayLaw(_Common):
             out = out * enabled
             self.reset_control(~enabled)
         self._steps = out
-        return out / self.arr
+        self.duty = out / self.arr
+        return self.duty
 
     # -- the float64 steps: the same arithmetic as ScalarLaw, in the same order
     def _estimate_float(self, raw_counts: npt.ArrayLike) -> None:
@@ -642,6 +647,7 @@ class ArrayLaw(_Common):
         self._v = self._v + acc + err * self._kvel
         self._ad = self._ad + err * self._kdist
         self.count = self.count + d
+        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self.innovation_counts = delta
         self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
         self._raw_prev = raw
@@ -699,13 +705,10 @@ class ArrayLaw(_Common):
             out = out * enabled
             self.reset_control(~enabled)
         self._steps = out
-        return out / self.arr
+        self.duty = out / self.arr
+        return self.duty
 
     # -- float views of the state (axis units)
-    @property
-    def pos_deg(self) -> npt.NDArray[np.float64]:
-        return self.count * AXIS_DEG_PER_COUNT
-
     @property
     def vel_dps(self) -> npt.NDArray[np.float64]:
         return self._out(self._vel)
@@ -721,7 +724,3 @@ class ArrayLaw(_Common):
     @property
     def current_meas_a(self) -> npt.NDArray[np.float64]:
         return self._out(self._imeas)
-
-    @property
-    def duty(self) -> npt.NDArray[np.float64]:
-        return self._steps / self.arr
