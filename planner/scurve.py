@@ -2,7 +2,12 @@
 
 Seed 002 (Zhang et al. 2013) writes the S-curve as seven phases of constant jerk
 ``+J, 0, -J, 0, -J, 0, +J`` (jerk-up, constant acceleration, jerk-down, cruise, and the mirror
-image to stop). Here the same shape is planned time-optimally for given limits
+image to stop). Two end values of its eq. (5) are misprinted and are read here as:
+``s_04 = s_03 + v_03 T_4`` (the paper repeats the s_03 line, ``s_03 + v_02 T_1 + J T_1^3/3``)
+and ``s_07 = s_06 + v_06 T_7 - J T_5 T_7^2 / 2 + J T_7^3 / 6`` (printed
+``s_06 + v_06 T_5 - J T_7^3 / 2``, which does not end at L); with these readings the
+per-phase formulas (3)-(5) agree with this module (tests/planner/test_sampling.py) and
+reproduce the paper's Table 2. Here the same shape is planned time-optimally for given limits
 ``|v| <= v_max``, ``|a| <= a_max``, ``|j| <= j_max`` from a start state ``(p0, v0, a0)`` to
 rest at ``p1``:
 
