@@ -7,6 +7,12 @@ the acceleration column of Table 1 and the jerk column of Table 2 are the value 
 the period that ends at row k* (row 0: 0), which is what :attr:`FixedPeriodSamples.a_held` and
 :attr:`FixedPeriodSamples.j_held` hold.
 
+Sampled here, both tables come out row by row to the printed digits, except four printed
+positions that are not the rounding of the exact value: Table 1 rows 1 and 3 are truncated
+(0.9375 printed 0.93, 8.4375 printed 8.43) and row 19 prints 119.07 for 119.0625 (all within
+one unit of the last digit); Table 2 row 8 prints 26.820 for 26.319 (a 3 misprinted as 8:
+eqs. (3)-(5) give 13.125 + 11.25 + 2.5 - 0.556). tests/planner/test_sampling.py asserts each.
+
 The paper's own parameterisation ("accelerate for n periods") is accepted by
 :func:`trapezoid_from_periods` and :func:`planner.scurve.scurve_from_periods`; otherwise any
 profile from :func:`planner.plan_trapezoid` / :func:`planner.plan_scurve` can be sampled.
