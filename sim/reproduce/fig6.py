@@ -19,7 +19,16 @@ from sim.reproduce.experiments import Runner, Trace, load, replace_move
 from sim.reproduce.metrics import RunMetrics, measure
 from sim.reproduce.plots import Curve, paper_figure
 
-__all__ = ["PAPER_ARRIVAL_S", "Fig6Result", "plot", "run", "velocity_jumps"]
+__all__ = [
+    "PAPER_ARRIVAL_S",
+    "Fig6Result",
+    "overshoot_peak_t_s",
+    "plot",
+    "run",
+    "settle_t_s",
+    "time_to_speed_s",
+    "velocity_jumps",
+]
 
 # Seed 000, section 5: "the velocity jumps at 0 s and at 3.5 s, with a large overshoot at
 # 3.5 s" (no number is printed for the overshoot).
@@ -51,6 +60,29 @@ def velocity_jumps(trace: Trace, min_dps2: float = 1000.0) -> list[tuple[float, 
             out.append((float(trace.t_s[i]), float(acc[i])))
         last = i
     return out
+
+
+def settle_t_s(trace: Trace, tol_deg: float) -> float | None:
+    """The time from which the position stays within ``tol_deg`` of the target."""
+    outside = np.flatnonzero(np.abs(trace.pos_deg - trace.command_target_deg[-1]) > tol_deg)
+    if not outside.size:
+        return float(trace.t_s[0])
+    if outside[-1] + 1 >= len(trace.t_s):
+        return None
+    return float(trace.t_s[outside[-1] + 1])
+
+
+def overshoot_peak_t_s(trace: Trace) -> float:
+    """When the position is farthest beyond the target (forward moves)."""
+    return float(trace.t_s[int(np.argmax(trace.pos_deg))])
+
+
+def time_to_speed_s(trace: Trace, speed_dps: float) -> float:
+    """Time from the (first) command until the measured speed first reaches ``speed_dps``."""
+    t0 = trace.command_t_s[0]
+    i0 = trace.index_at(t0)
+    hits = np.flatnonzero(np.abs(trace.vel_dps[i0:]) >= speed_dps)
+    return float(trace.t_s[i0 + hits[0]] - t0) if hits.size else float("nan")
 
 
 def run(runner: Runner) -> Fig6Result:

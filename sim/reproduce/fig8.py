@@ -183,7 +183,8 @@ def plot(result: Fig8Result, path: str | Path, current_limit_a: float) -> Path:
         markers.append(Marker(t_cmd, f"S_{n + 1} = {target * 1000:.0e}".replace("e+0", "e")))
     a_text = f"a_max = {result.a_max_dps2:g} deg/s^2"
     scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
-    title = f"Fig. 8: four moves, replanned before each ended ({result.profile}, {a_text}){scale}"
+    profile = "S-curve" if result.profile == "scurve" else result.profile
+    title = f"Fig. 8: four moves, replanned before each ended ({profile}, {a_text}){scale}"
     return paper_figure(
         [Curve(tr, "measured (board velocity estimate)", "tab:blue")],
         path,

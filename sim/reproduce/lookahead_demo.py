@@ -156,7 +156,7 @@ def plot(result: LookaheadResult, path: str | Path, current_limit_a: float) -> P
     for name, t in (("stop at each: done", result.done_stop_each_s),
                     ("look-ahead: done", result.done_lookahead_s)):  # fmt: skip
         if t is not None:
-            markers.append(Marker(t / result.time_scale, name))
+            markers.append(Marker(t / result.time_scale, name, at_top=False))
     wp = ", ".join(f"{w:g}" for w in result.waypoints_deg)
     return paper_figure(
         [

@@ -99,6 +99,7 @@ def reproduce(
         baud=int(bench.firmware.telemetry.baud),
         tick_hz=float(bench.firmware.servo.tick_hz),
         current_limit_a=limit_a,
+        acc_ff_a_per_dps2=float(bench.firmware.velocity.acc_ff_a_per_dps2),
         quick=quick,
         wall_s=wall_s,
         figures=tuple(p.name for p in paths),

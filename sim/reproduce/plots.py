@@ -43,6 +43,7 @@ class Marker:
     t_s: float
     label: str
     color: str = "0.3"
+    at_top: bool = True
 
 
 def paper_figure(
@@ -91,8 +92,9 @@ def paper_figure(
         for ax in (ax_v, ax_e, ax_p, ax_i):
             ax.axvline(m.t_s, color=m.color, ls=":", lw=1.0)
         ax_v.annotate(
-            m.label, (m.t_s, 0.0), xycoords=("data", "axes fraction"), xytext=(2, 4),
-            textcoords="offset points", va="bottom", ha="left", rotation=90,
+            m.label, (m.t_s, 1.0 if m.at_top else 0.0), xycoords=("data", "axes fraction"),
+            xytext=(2, -4 if m.at_top else 4), textcoords="offset points",
+            va="top" if m.at_top else "bottom", ha="left", rotation=90,
             fontsize="small", color=m.color,
         )  # fmt: skip
     if shade is not None:
