@@ -38,7 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from planner.profile import Profile, build_profile
-from planner.trapezoid import _check_finite, _check_positive
+from planner.trapezoid import _check_finite, _check_positive, plan_trapezoid
 
 __all__ = [
     "LookaheadQueue",
@@ -56,7 +56,9 @@ Array = npt.NDArray[np.float64]
 _ROUND = 1e-9
 
 
-def plan_segment(length: float, v_b: float, v_e: float, v_m: float, a_max: float) -> Profile:
+def plan_segment(
+    length: float, v_b: float, v_e: float, v_m: float, a_max: float, *, optimal: bool = False
+) -> Profile:
     """Seed 001, section 4: plan one segment of ``length`` from speed v_b to v_e.
 
     With ``l_e = (2 V_m^2 - V_b^2 - V_e^2) / (2 a)`` and ``l_i = |V_b^2 - V_e^2| / (2 a)``:
@@ -76,6 +78,11 @@ def plan_segment(length: float, v_b: float, v_e: float, v_m: float, a_max: float
     The seed leaves out ``l < l_e`` with ``V_b == V_e > 0``: that is a cruise (case 4 with no
     deceleration). Speeds are >= 0 along the path; the profile's position is the arc length
     from 0 to ``length``. Its ``case`` is ``"1"``..``"7"``.
+
+    The seed's cases 3, 4 and 7 are not the fastest when l_i < l < l_e (they cruise at the
+    lower end speed instead of rising above both ends). ``optimal=True`` plans those
+    segments with :func:`planner.plan_trapezoid` instead (same end speeds, shorter time;
+    its case letters then), and keeps the seed's cases 1, 2, 5 and 6, which are optimal.
 
     Raises:
         ValueError: ``l < l_i`` (beyond rounding): the end speed cannot be reached, which a
@@ -106,6 +113,8 @@ def plan_segment(length: float, v_b: float, v_e: float, v_m: float, a_max: float
             f"length = {length!r}: shorter than l_i = {l_i!r} needed to go from "
             f"v_b = {v_b!r} to v_e = {v_e!r}; the look-ahead was wrong, stop the machine"
         )
+    if optimal and l_i + tol < length < l_e:
+        return plan_trapezoid(0.0, length, v_max=v_m, a_max=a_max, v0=v_b, v1=v_e)
     segments: list[tuple[float, float]]
     if length >= l_e:
         t_up = (v_m - v_b) / a_max
@@ -273,12 +282,14 @@ def _assemble(
     speeds: list[float],
     v_max: float,
     a_max: float,
-    t_start: float = 0.0,
+    optimal: bool,
 ) -> list[PathSegment]:
     segs = []
-    t = t_start
+    t = 0.0
     for i in range(len(lengths)):
-        prof = plan_segment(float(lengths[i]), speeds[i], speeds[i + 1], v_max, a_max)
+        prof = plan_segment(
+            float(lengths[i]), speeds[i], speeds[i + 1], v_max, a_max, optimal=optimal
+        )
         segs.append(PathSegment(pts[i].copy(), dirs[i].copy(), float(lengths[i]), t, prof))
         t += prof.duration
     return segs
@@ -297,6 +308,7 @@ def plan_path(
     a_max: float,
     period: float,
     contour_error: float | None = None,
+    optimal: bool = False,
 ) -> PathPlan:
     """Batch look-ahead and per-segment planning of a polyline, at rest at both ends.
 
@@ -304,6 +316,8 @@ def plan_path(
         points: waypoints, shape ``(M + 1, N)`` (or ``(M + 1,)`` for one dimension).
         v_max, a_max: path speed and acceleration limits. period: the interpolation
             period T of the corner limit. contour_error: e of the optional contour limit.
+        optimal: plan segments time-optimally instead of in the seed's cases (see
+            :func:`plan_segment`); the junction speeds are the same.
     """
     _check_limits(v_max, a_max, period, contour_error)
     pts = _as_points(points)
@@ -313,7 +327,7 @@ def plan_path(
         for i in range(len(lengths) - 1)
     ]
     speeds = junction_speeds(lengths, caps, v_max=v_max, a_max=a_max)
-    segs = _assemble(pts, lengths, dirs, speeds, v_max, a_max)
+    segs = _assemble(pts, lengths, dirs, speeds, v_max, a_max, optimal)
     return PathPlan(tuple(segs), tuple(speeds), pts[-1].copy())
 
 
@@ -323,6 +337,7 @@ def plan_program(
     v_max: float,
     a_max: float,
     period: float = 0.002,
+    optimal: bool = False,
 ) -> PathPlan:
     """A 1-D turntable program: visit ``waypoints`` in order, stopping only at reversals.
 
@@ -330,7 +345,11 @@ def plan_program(
     turntable comes to rest. ``period`` only matters in more than one dimension.
     """
     return plan_path(
-        np.asarray(waypoints, dtype=float)[:, None], v_max=v_max, a_max=a_max, period=period
+        np.asarray(waypoints, dtype=float)[:, None],
+        v_max=v_max,
+        a_max=a_max,
+        period=period,
+        optimal=optimal,
     )
 
 
@@ -345,6 +364,7 @@ class LookaheadQueue:
     Args:
         start: the first point, shape ``(N,)`` (or a float for one dimension).
         window: the most segments held (>= 1).
+        optimal: plan segments time-optimally (see :func:`plan_segment`).
     """
 
     def __init__(
@@ -356,12 +376,14 @@ class LookaheadQueue:
         period: float,
         window: int = 32,
         contour_error: float | None = None,
+        optimal: bool = False,
     ) -> None:
         _check_limits(v_max, a_max, period, contour_error)
         if not (isinstance(window, int) and window >= 1):
             raise ValueError(f"window = {window!r}: must be an integer >= 1")
         self.v_max, self.a_max, self.period = float(v_max), float(a_max), float(period)
         self.contour_error = contour_error
+        self.optimal = optimal
         self.window = window
         self._last = np.atleast_1d(np.asarray(start, dtype=float)).copy()
         if not np.all(np.isfinite(self._last)):
@@ -406,7 +428,9 @@ class LookaheadQueue:
         out = []
         for k in range(count):
             start, direction, length = self._pending.popleft()
-            prof = plan_segment(length, speeds[k], speeds[k + 1], self.v_max, self.a_max)
+            prof = plan_segment(
+                length, speeds[k], speeds[k + 1], self.v_max, self.a_max, optimal=self.optimal
+            )
             out.append(PathSegment(start, direction, length, self._t, prof))
             self._t += prof.duration
         self._v_in = speeds[count]

@@ -211,3 +211,31 @@ def test_bad_arguments():
         q.append([1.0, 2.0, 3.0])
     with pytest.raises(ValueError, match="points: must all be finite"):
         plan_path([[0, 0], [1, math.nan]], v_max=1.0, a_max=1.0, period=0.01)
+
+
+def test_optimal_segments_are_never_slower_and_keep_the_junction_speeds():
+    # Case 4 of the seed (cruise at v_b, then decelerate) is slower than rising first.
+    seed = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0)
+    fast = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0, optimal=True)
+    assert seed.case == "4" and fast.duration < seed.duration
+    assert fast.at(fast.duration)[:2] == (20.0, 2.0)
+    rng = np.random.default_rng(9)
+    for dim in (1, 2, 3):
+        pts = random_polyline(rng, 25, dim)
+        a = plan_path(pts, v_max=8.0, a_max=A, period=0.01)
+        b = plan_path(pts, v_max=8.0, a_max=A, period=0.01, optimal=True)
+        assert a.speeds == b.speeds
+        for sa, sb in zip(a.segments, b.segments, strict=True):
+            assert sb.profile.duration <= sa.profile.duration * (1 + 1e-12)
+            t = np.linspace(0.0, sb.profile.duration, 201)
+            s, ds, dds = sb.profile.at(t)
+            assert np.all(ds >= -1e-9) and np.all(ds <= 8.0 * (1 + 1e-9))
+            assert np.all(np.abs(dds) <= A * (1 + 1e-9))
+            assert s[-1] == pytest.approx(sb.length)
+        q = LookaheadQueue(pts[0], v_max=8.0, a_max=A, period=0.01, window=len(pts), optimal=True)
+        for p in pts[1:]:
+            q.append(p)
+        released = q.flush()
+        assert [s.profile.duration for s in released] == pytest.approx(
+            [s.profile.duration for s in b.segments], rel=1e-12
+        )
