@@ -155,6 +155,7 @@ class Firmware:
         self._moving = False
         self._target_deg = 0.0
         self._j_max = 0.0
+        self._move_limits = (lim.v_max_dps, lim.a_max_dps2)  # v_max, a_max of the move
         self._v_clamp_dps = lim.v_max_dps
         self.sp_pos_deg = 0.0
         self.sp_vel_dps = 0.0
@@ -620,6 +621,7 @@ class Firmware:
             except ValueError:
                 return NackCode.OUT_OF_RANGE
             self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
+            self._move_limits = (m.v_max_dps, m.a_max_dps2)
             self._v_clamp_dps = self.v_max_dps
         self._target_deg = m.target_deg
         self._moving = True
@@ -672,11 +674,28 @@ class Firmware:
             and 0.0 < m.following_error_deg
         ):
             return NackCode.OUT_OF_RANGE
-        self.v_max_dps, self.a_max_dps2 = float(m.v_max_dps), float(m.a_max_dps2)
+        v_max, a_max = float(m.v_max_dps), float(m.a_max_dps2)
+        if self._mode == "plan" and self._moving:
+            # Limits lowered below those of the move in progress: replan the rest of it from
+            # the commanded state (the planner brakes down to the new v_max first).
+            move_v, move_a = self._move_limits
+            if v_max < move_v or a_max < move_a:
+                new_v, new_a = min(v_max, move_v), min(a_max, move_a)
+                planner = self._planners[self._kind]
+                j_max = self._j_max if self._kind == "scurve" else None
+                try:
+                    planner.command(self.tick * self.dt_s, self._target_deg, v_max=new_v,
+                                    a_max=new_a, j_max=j_max)  # fmt: skip
+                except ValueError:
+                    return NackCode.OUT_OF_RANGE
+                self._move_limits = (new_v, new_a)
+        self.v_max_dps, self.a_max_dps2 = v_max, a_max
         self.current_limit_a = float(m.current_limit_a)
         self.following_error_deg = float(m.following_error_deg)
-        if self._mode != "step":
-            self._v_clamp_dps = self.v_max_dps
+        if self._mode == "step":
+            self._v_clamp_dps = min(self._v_clamp_dps, v_max)
+        else:
+            self._v_clamp_dps = v_max
         return None
 
     def _cmd_clear_fault(self, m: ClearFault) -> NackCode | None:

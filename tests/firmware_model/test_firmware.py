@@ -465,3 +465,16 @@ def test_planned_move_after_a_step_move_starts_from_the_axis(make_bench):
     assert abs(sp[100] - pos[100]) < 0.01
     assert b.arr("sp_vel_dps")[100] <= 0.0
     assert sp[-1] == 0.0
+
+
+def test_lowering_the_limits_mid_move_replans_without_a_jump(make_bench):
+    b = make_bench()
+    lower = SetLimits(cmd_id=2, v_max_dps=100.0, a_max_dps2=1000.0, current_limit_a=5.0,
+                      following_error_deg=30.0)  # fmt: skip
+    b.run(400, {5: [move(1, 300.0, v=300.0)], 150: [lower]})
+    assert acks(b) == [(1, 2), (2, MsgType.SET_LIMITS)]
+    sp_v = b.arr("sp_vel_dps")
+    assert sp_v[149] == pytest.approx(300.0)
+    assert np.abs(np.diff(sp_v)).max() <= A * 0.002 + 1e-6  # no jump
+    assert np.abs(sp_v[300:]).max() <= 100.0 + 1e-9  # braked to the new v_max
+    assert b.fw.counters["faults"] == 0
