@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -95,6 +96,9 @@ class Firmware:
         params: the firmware tables.
         batch: None for one axis (scalars in and out), or N for N axes in lock-step
             (``(N,)`` arrays in and out; gains in ``params`` may be ``(N,)`` arrays).
+        gain_check: ``(params, gains) -> reason or None``, run on every ``SetGains`` (a
+            reason NACKs it with ``UNSTABLE_GAINS``); ``gains`` holds ``kp_i, ki_i, kp_v,
+            ki_v, kp_p`` and the feed-forward terms. Default: ``stability.unstable_reason``.
 
     Attributes:
         tick: servo ticks done.
@@ -105,7 +109,13 @@ class Firmware:
         decoder: the ``serial_protocol.frame.Decoder`` fed with the received bytes.
     """
 
-    def __init__(self, params: FirmwareParams, *, batch: int | None = None) -> None:
+    def __init__(
+        self,
+        params: FirmwareParams,
+        *,
+        batch: int | None = None,
+        gain_check: Callable[[FirmwareParams, dict[str, float]], str | None] = unstable_reason,
+    ) -> None:
         gain_batch = params.batch_size()
         if gain_batch is not None and gain_batch != batch:
             raise ValueError(f"batch = {batch!r}: gain arrays have length {gain_batch}")
@@ -113,6 +123,7 @@ class Firmware:
             raise ValueError(f"batch = {batch!r}: must be >= 1")
         self.params = params
         self.batch = batch
+        self._gain_check = gain_check
         self._scalar = batch is None
         fixed = params.servo.arithmetic == "fixed"
         self._array_law = batch is not None
@@ -657,7 +668,7 @@ class Firmware:
             new[ki_name] = float(m.ki)
         trial = {k: _first(v) for k, v in self.law.gains.items()}
         trial.update(new)
-        if unstable_reason(self.params, trial) is not None:
+        if self._gain_check(self.params, trial) is not None:
             return NackCode.UNSTABLE_GAINS
         self.law.set_gains(**new)
         return None

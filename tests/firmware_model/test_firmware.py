@@ -478,3 +478,25 @@ def test_lowering_the_limits_mid_move_replans_without_a_jump(make_bench):
     assert np.abs(np.diff(sp_v)).max() <= A * 0.002 + 1e-6  # no jump
     assert np.abs(sp_v[300:]).max() <= 100.0 + 1e-9  # braked to the new v_max
     assert b.fw.counters["faults"] == 0
+
+
+def test_a_custom_gain_check_decides_unstable_gains(make_bench):
+    seen = []
+
+    def margin_check(params, gains):
+        seen.append(dict(gains))
+        return "gain margin below 6 dB" if gains["kp_v"] > 0.08 else None
+
+    b = make_bench()
+    b.fw = Firmware(FirmwareParams(), gain_check=margin_check)
+    b.run(
+        10,
+        {
+            2: [SetGains(cmd_id=1, loop=Loop.VELOCITY, kp=0.07, ki=1.0, kd=0.0)],
+            4: [SetGains(cmd_id=2, loop=Loop.VELOCITY, kp=0.09, ki=1.0, kd=0.0)],
+        },
+    )
+    assert acks(b) == [(1, MsgType.SET_GAINS)]
+    assert nacks(b) == [(2, NackCode.UNSTABLE_GAINS)]
+    assert seen[0]["kp_v"] == pytest.approx(0.07) and seen[1]["kp_p"] > 0.0
+    assert b.fw.law.gains["kp_v"] == pytest.approx(0.07)
