@@ -182,6 +182,8 @@ def junction_speeds(
         whole rest of the path, v_max, contour).
     """
     m = len(lengths)
+    if m == 0:
+        return [v_start]  # a single point: nothing to plan
     two_a = 2.0 * a_max
     speeds = [v_start] + [min(v_max, float(c)) for c in caps] + [v_end]
     if len(speeds) != m + 1:

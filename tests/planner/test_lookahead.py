@@ -239,3 +239,28 @@ def test_optimal_segments_are_never_slower_and_keep_the_junction_speeds():
         assert [s.profile.duration for s in released] == pytest.approx(
             [s.profile.duration for s in b.segments], rel=1e-12
         )
+
+
+@settings(settings.get_profile("planner"))
+@given(
+    waypoints=st.lists(st.integers(-20, 20).map(float), min_size=2, max_size=15),
+    v_max=st.floats(1.0, 100.0),
+    a_max=st.floats(1.0, 100.0),
+)
+def test_property_program_stops_exactly_at_reversals(waypoints, v_max, a_max):
+    plan = plan_program(waypoints, v_max=v_max, a_max=a_max)
+    kept = [waypoints[0]]
+    for w in waypoints[1:]:
+        if w != kept[-1]:
+            kept.append(w)
+    assert len(plan.segments) == len(kept) - 1
+    for i in range(1, len(kept) - 1):
+        reverses = (kept[i] - kept[i - 1]) * (kept[i + 1] - kept[i]) < 0
+        assert (plan.speeds[i] == 0.0) == reverses
+    if len(kept) > 1:
+        t = np.linspace(0.0, plan.duration, 4001)
+        p, v, a = plan.at(t)
+        assert np.all(np.abs(v) <= v_max * (1 + 1e-9)) and np.all(np.abs(a) <= a_max * (1 + 1e-9))
+        # Continuous 1-D velocity: steps bounded by a_max dt.
+        assert np.max(np.abs(np.diff(v[:, 0]))) <= a_max * (t[1] - t[0]) * (1 + 1e-6) + 1e-12
+        assert p[-1, 0] == pytest.approx(kept[-1])
