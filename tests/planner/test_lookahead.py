@@ -264,3 +264,23 @@ def test_property_program_stops_exactly_at_reversals(waypoints, v_max, a_max):
         # Continuous 1-D velocity: steps bounded by a_max dt.
         assert np.max(np.abs(np.diff(v[:, 0]))) <= a_max * (t[1] - t[0]) * (1 + 1e-6) + 1e-12
         assert p[-1, 0] == pytest.approx(kept[-1])
+
+
+@settings(settings.get_profile("planner"))
+@given(points=points_2d, window=st.integers(1, 6), v_max=st.floats(0.5, 50.0))
+def test_property_streaming_window_is_valid_and_never_faster(points, window, v_max):
+    batch = plan_path(points, v_max=v_max, a_max=A, period=0.01)
+    q = LookaheadQueue(points[0], v_max=v_max, a_max=A, period=0.01, window=window)
+    released = []
+    for p in points[1:]:
+        released += q.append(p)
+        released += q.pop_ready()
+        assert len(q) <= window
+    released += q.flush()
+    assert len(released) == len(batch.segments)
+    speed = 0.0
+    for mine, theirs in zip(released, batch.segments, strict=True):
+        assert mine.profile.v0 == speed  # continuous across every release boundary
+        assert mine.profile.v1 <= theirs.profile.v1 * (1 + 1e-12) + 1e-15
+        speed = mine.profile.v1
+    assert speed == 0.0
