@@ -70,7 +70,6 @@ class ReplanRow:
     sim_sp_pos_deg: float
     sp_vel_step_dps: float
     vel_step_dps: float
-    case: str
 
 
 @dataclass(frozen=True)
@@ -151,7 +150,6 @@ def _rows(trace: Trace, k: float) -> tuple[ReplanRow, ...]:
                 sim_sp_pos_deg=float(trace.sp_pos_deg[i]) * k * k,
                 sp_vel_step_dps=sp_step,
                 vel_step_dps=vel_step,
-                case="",
             )
         )
     return tuple(rows)

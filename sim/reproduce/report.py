@@ -454,8 +454,8 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
         f"where the PC plotted what the board sent. At {inp.baud} baud (8N1) one "
         f"{frame.TELEMETRY_FRAME_BYTES}-byte frame per {1000 / inp.tick_hz:g} ms tick is "
         f"{bytes_per_s:,.0f} B/s, {100 * bytes_per_s / line:.1f} % of the line "
-        f"({line:,.0f} B/s): no decimation, one frame per tick. Over all runs the PC decoded "
-        f"{frames:,} telemetry frames with {gaps} missing ticks and {crc} CRC errors. The "
+        f"({line:,.0f} B/s): no decimation, one frame per tick. Over the runs of Fig. 6-8 the PC "
+        f"decoded {frames:,} telemetry frames with {gaps} missing ticks and {crc} CRC errors. The "
         "telemetry carries positions and velocities in steps of 1e-4 deg and 1e-4 deg/s and "
         "the current in mA.",
         "",
