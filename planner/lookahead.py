@@ -37,8 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from planner._checks import check_finite, check_positive
 from planner.profile import Profile, build_profile
-from planner.trapezoid import _check_finite, _check_positive, plan_trapezoid
+from planner.trapezoid import plan_trapezoid
 
 __all__ = [
     "LookaheadQueue",
@@ -88,8 +89,8 @@ def plan_segment(
         ValueError: ``l < l_i`` (beyond rounding): the end speed cannot be reached, which a
             correct look-ahead never produces.
     """
-    _check_finite(length=length, v_b=v_b, v_e=v_e)
-    _check_positive(v_m=v_m, a_max=a_max)
+    check_finite(length=length, v_b=v_b, v_e=v_e)
+    check_positive(v_m=v_m, a_max=a_max)
     if (
         length < 0.0
         or v_b < 0.0
@@ -298,9 +299,9 @@ def _assemble(
 
 
 def _check_limits(v_max: float, a_max: float, period: float, contour_error: float | None) -> None:
-    _check_positive(v_max=v_max, a_max=a_max, period=period)
+    check_positive(v_max=v_max, a_max=a_max, period=period)
     if contour_error is not None:
-        _check_positive(contour_error=contour_error)
+        check_positive(contour_error=contour_error)
 
 
 def plan_path(

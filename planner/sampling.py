@@ -26,8 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from planner._checks import check_positive
 from planner.profile import Profile
-from planner.trapezoid import _check_positive, plan_trapezoid
+from planner.trapezoid import plan_trapezoid
 
 __all__ = ["FixedPeriodSamples", "sample_fixed_period", "trapezoid_from_periods"]
 
@@ -61,7 +62,7 @@ def sample_fixed_period(profile: Profile, dt: float, *, n: int | None = None) ->
         n: number of periods; default the fewest that reach the end of the profile
             (``ceil(duration / dt)``, ignoring a rounding excess of 1e-9 period).
     """
-    _check_positive(dt=dt)
+    check_positive(dt=dt)
     if n is None:
         n = max(0, math.ceil(profile.duration / dt - 1e-9))
     elif not (isinstance(n, int) and n >= 0):
@@ -87,5 +88,5 @@ def trapezoid_from_periods(
     """
     if not (isinstance(n_acc, int) and n_acc >= 1):
         raise ValueError(f"n_acc = {n_acc!r}: must be an integer >= 1")
-    _check_positive(v=v, dt=dt)
+    check_positive(v=v, dt=dt)
     return plan_trapezoid(p0, p0 + length, v_max=v, a_max=v / (n_acc * dt))

@@ -39,9 +39,11 @@ cruise); ``"classic"`` and ``"triangle"`` when starting at rest; ``"hold"`` for 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
+from planner._checks import check_finite, check_positive
 from planner.profile import Profile, build_profile
-from planner.trapezoid import _check_finite, _check_positive, time_optimal_segments
+from planner.trapezoid import time_optimal_segments
 
 __all__ = ["plan_scurve", "plan_scurve_stop", "scurve_from_periods", "velocity_pulse"]
 
@@ -143,7 +145,7 @@ def _total(v0: float, a0: float, vp: float, a_max: float, j_max: float) -> tuple
     return d1 + d2, t1 + t2
 
 
-def _refine(f, lo: float, hi: float, f_lo: float, f_hi: float) -> float:
+def _refine(f: Callable[[float], float], lo: float, hi: float, f_lo: float, f_hi: float) -> float:
     """Root of ``f`` in the sign-changing bracket ``[lo, hi]`` (Illinois regula falsi: keeps
     the bracket, so it also converges across the kinks between pulse shapes)."""
     side = 0
@@ -172,7 +174,7 @@ def _refine(f, lo: float, hi: float, f_lo: float, f_hi: float) -> float:
     return x
 
 
-def _roots(f, xs: list[float]) -> list[float]:
+def _roots(f: Callable[[float], float], xs: list[float]) -> list[float]:
     """All roots of ``f`` bracketed by consecutive points of the sorted grid ``xs``."""
     fs = [f(x) for x in xs]
     out = [x for x, fx in zip(xs, fs, strict=True) if fx == 0.0]
@@ -311,8 +313,8 @@ def plan_scurve(
         and a_max > 0.0
         and j_max > 0.0
     ):  # the slow path names the bad argument
-        _check_finite(p0=p0, p1=p1, v0=v0, a0=a0)
-        _check_positive(v_max=v_max, a_max=a_max, j_max=j_max)
+        check_finite(p0=p0, p1=p1, v0=v0, a0=a0)
+        check_positive(v_max=v_max, a_max=a_max, j_max=j_max)
     p0, p1, v0, a0 = float(p0), float(p1), float(v0), float(a0)
     v_max, a_max, j_max = float(v_max), float(a_max), float(j_max)
     d = p1 - p0
@@ -367,8 +369,8 @@ def plan_scurve_stop(
     p0: float, *, a_max: float, j_max: float, v0: float = 0.0, a0: float = 0.0
 ) -> Profile:
     """The shortest jerk-limited stop from ``(p0, v0, a0)``; ends at rest wherever it stops."""
-    _check_finite(p0=p0, v0=v0, a0=a0)
-    _check_positive(a_max=a_max, j_max=j_max)
+    check_finite(p0=p0, v0=v0, a0=a0)
+    check_positive(a_max=a_max, j_max=j_max)
     segments = velocity_pulse(float(v0), float(a0), 0.0, float(a_max), float(j_max))
     dist, dur = _integrate(segments, float(v0), float(a0))
     case = "stop" if dur > 0.0 else "hold"
@@ -388,7 +390,7 @@ def scurve_from_periods(
         raise ValueError(f"n_jerk = {n_jerk!r}: must be an integer >= 1")
     if not (isinstance(n_const, int) and n_const >= 0):
         raise ValueError(f"n_const = {n_const!r}: must be an integer >= 0")
-    _check_positive(v=v, dt=dt)
+    check_positive(v=v, dt=dt)
     t_j = n_jerk * dt
     t_a = n_const * dt
     j_max = v / (t_j * (t_j + t_a))

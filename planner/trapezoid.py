@@ -33,21 +33,10 @@ from __future__ import annotations
 
 import math
 
+from planner._checks import check_finite, check_positive
 from planner.profile import Profile, build_profile
 
 __all__ = ["plan_trapezoid", "plan_stop", "time_optimal_segments"]
-
-
-def _check_finite(**values: float) -> None:
-    for name, value in values.items():
-        if not isinstance(value, int | float) or not math.isfinite(value):
-            raise ValueError(f"{name} = {value!r}: must be a finite number")
-
-
-def _check_positive(**values: float) -> None:
-    for name, value in values.items():
-        if not isinstance(value, int | float) or not (value > 0.0 and math.isfinite(value)):
-            raise ValueError(f"{name} = {value!r}: must be a finite number > 0")
 
 
 def time_optimal_segments(
@@ -146,8 +135,8 @@ def plan_trapezoid(
         and v_max > 0.0
         and a_max > 0.0
     ):  # the slow path names the bad argument
-        _check_finite(p0=p0, p1=p1, v0=v0, v1=v1)
-        _check_positive(v_max=v_max, a_max=a_max)
+        check_finite(p0=p0, p1=p1, v0=v0, v1=v1)
+        check_positive(v_max=v_max, a_max=a_max)
     if abs(v1) > v_max:
         raise ValueError(f"v1 = {v1!r}: |v1| must be <= v_max = {v_max!r}")
     p0, p1, v0, v1 = float(p0), float(p1), float(v0), float(v1)
@@ -183,8 +172,8 @@ def plan_stop(p0: float, *, a_max: float, v0: float = 0.0) -> Profile:
     The end position is wherever the stop ends, ``p0 + v0 |v0| / (2 a_max)``; case ``"stop"``
     (``"hold"`` if already at rest).
     """
-    _check_finite(p0=p0, v0=v0)
-    _check_positive(a_max=a_max)
+    check_finite(p0=p0, v0=v0)
+    check_positive(a_max=a_max)
     p0, v0, a_max = float(p0), float(v0), float(a_max)
     dt = abs(v0) / a_max
     p1 = p0 + 0.5 * v0 * dt
