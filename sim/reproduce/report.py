@@ -346,15 +346,21 @@ def _scurve(res: scurve_extras.ScurveResult, acc_ff_a_per_dps2: float) -> list[s
         )
     quick = res.fig7.time_scale != 1.0
     max_di = max(abs(c.trapezoid.peak_current_a - c.scurve.peak_current_a) for c in res.comparisons)
-    cases = ", ".join(f"{r.name}: {r.observed_case}" for r in res.fig7.runs)
+    cases = ", ".join(
+        f"{r.name}: {r.observed_case} (from {_f(r.start_vel_dps)} deg/s at "
+        f"{_f(r.start_pos_deg, 2)} deg)"
+        for r in res.fig7.runs
+    )
     return [
         "### S-curve instead of trapezoid (Fig. 7 and Fig. 8 scenarios)",
         "",
         f"Same moves, 7-segment S-curve with j_max = {res.j_max_dps3:g} deg/s³ (a_max reached "
         f"in {scurve_extras.RAMP_S:g} s; our choice, the paper has no S-curve run). The "
         'trapezoid\'s "jerk" is its acceleration step spread over one 2 ms tick (a/Δt = '
-        f"{148 / 0.002:,.0f} deg/s³, twice that where the acceleration reverses). Fig. 7 "
-        f"strategies with the S-curve: {cases}. Figures: fig7_scurve.png, fig8_scurve.png."
+        f"{148 / 0.002:,.0f} deg/s³, twice that where the acceleration reverses). The Fig. 7 "
+        "run-up uses j_max = 1e6 deg/s³ (the trapezoid's timing, so that it is still "
+        "interrupted at 0 deg and 400 deg/s). Fig. 7 strategies with the S-curve: "
+        f"{cases}. Figures: fig7_scurve.png, fig8_scurve.png."
         + (
             " (--quick: durations scaled back; jerks, currents and steps as measured on the "
             "quick runs, whose jerk limit is 4 times higher.)"
@@ -495,6 +501,8 @@ def write_report(inp: ReportInputs, path) -> None:
     rows = _fig6_rows(inp) + _fig7_rows(inp) + _fig8_rows(inp)
     lines += _table(["quantity", "paper", "simulation", "why they differ (or agree)"], rows)
     lines += [
+        "Limits the paper does not print for Fig. 6 and Fig. 7: the planned moves use Table "
+        f"1's a_max = {inp.fig7.a_max_dps2:g} deg/s² and v_max = {inp.fig7.v_max_dps:g} deg/s. "
         "How the bench gets to 400 deg/s at 0 deg for Fig. 7 (the paper does not say): a "
         "run-up (move to -200 deg, then a move towards +50000 deg at 400 deg/s, a = 1000 "
         "deg/s²) is interrupted by the Fig. 7 move while it cruises through 0 deg; the grey "
