@@ -14,7 +14,9 @@ d     S'_b < -S_2                                 decelerate, cruise at -v_max, 
 ====  ===============================  ==========================================
 
 (The seed prints the lower bound of case c with S_0^2 where v0^2 is meant, and eq. (18) with
-S_b where S'_b is meant; both are read the second way here.)
+S_b where S'_b is meant; both are read the second way here. Its triangle, eqs. (5)-(7), writes
+v_max for the peak speed; the peak is v' = sqrt(a_max S_a), so t1 = t2 = v'/a_max and
+t3 = 2 v'/a_max.)
 
 What the paper leaves out is handled too: a negative v0 is the mirror image (the case letter
 is that of the mirrored move, so "a" always means "keep going the way you were going"); a
