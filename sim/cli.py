@@ -14,7 +14,11 @@ import sys
 from serial_protocol.exceptions import TurntableError
 
 # name -> (module, one-line help). Add a line here when a subcommand lands.
-COMMANDS: dict[str, tuple[str, str]] = {}
+COMMANDS: dict[str, tuple[str, str]] = {
+    "decode": ("sim.commands.decode", "decode a raw captured serial byte stream to CSV"),
+    "monitor": ("sim.commands.monitor", "talk to a board or 'serve --pty': commands, status, CSV"),
+    "serve": ("sim.commands.serve", "run the simulated bench in real time behind a pty"),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
