@@ -281,7 +281,7 @@ def _replan_steps(inp: ReportInputs) -> list[str]:
 
 def _seed002(res: seed002.Seed002Result) -> list[str]:
     lines = [
-        "## 5. Seed 002, Tables 1 and 2",
+        "## 6. Seed 002, Tables 1 and 2",
         "",
         "The paper's rows (as printed), the planner's fixed-period samples "
         "(`planner.sample_fixed_period`), and the board running the same moves on the "
@@ -453,10 +453,10 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
     gaps = sum(t.frame_gaps for t in traces)
     crc = sum(t.link.get("pc_decoder_crc_errors", 0) for t in traces)
     return [
-        "## 7. Where the data comes from",
+        "## 5. Where the data comes from",
         "",
-        f'Every curve and number above (except the "true" current) is what the simulated PC '
-        f"decoded from the board's `Telemetry` frames on the emulated UART, as in the paper "
+        f'Every curve and number in this report (except the "true" current) is what the simulated '
+        f"PC decoded from the board's `Telemetry` frames on the emulated UART, as in the paper "
         f"where the PC plotted what the board sent. At {inp.baud} baud (8N1) one "
         f"{frame.TELEMETRY_FRAME_BYTES}-byte frame per {1000 / inp.tick_hz:g} ms tick is "
         f"{bytes_per_s:,.0f} B/s, {100 * bytes_per_s / line:.1f} % of the line "
@@ -536,16 +536,16 @@ def write_report(inp: ReportInputs, path) -> None:
     ]
     lines += _metrics_table(runs)
     lines += _replan_steps(inp)
+    traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
+    traces += [r.trace for r in inp.fig7.runs]
+    lines += _link(inp, traces)
     if inp.seed002 is not None:
         lines += _seed002(inp.seed002)
     if inp.scurve is not None or inp.lookahead is not None:
-        lines += ["## 6. Beyond the paper", ""]
+        lines += ["## 7. Beyond the paper", ""]
     if inp.scurve is not None:
         lines += _scurve(inp.scurve, inp.acc_ff_a_per_dps2)
     if inp.lookahead is not None:
         lines += _lookahead(inp.lookahead)
-    traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
-    traces += [r.trace for r in inp.fig7.runs]
-    lines += _link(inp, traces)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))
