@@ -130,19 +130,20 @@ class Progress:
         if not self.enabled or self._closed:
             return
         finished = self._done >= self.total
+        if finished:
+            self.close()  # draws the final state once
+            return
         if self.tty:
             now = self._clock()
-            if finished or now - self._last_draw_wall_s >= self.min_interval_s:
+            if now - self._last_draw_wall_s >= self.min_interval_s:
                 self._last_draw_wall_s = now
                 self._draw()
         else:
             fraction = self._done / self.total
-            if not finished and fraction >= self._next_line_fraction:
+            if fraction >= self._next_line_fraction:
                 while self._next_line_fraction <= fraction:
                     self._next_line_fraction += self.line_step
                 self._write_line()
-        if finished:
-            self.close()
 
     def advance(self, n: int = 1) -> None:
         """Add ``n`` units done."""

@@ -39,6 +39,7 @@ def test_tty_bar_redraws_in_place_with_percent_and_eta():
     text = out.getvalue()
     assert text.endswith("done in 8.0 s\n")
     assert text.count("\n") == 1
+    assert text.count("done in") == 1  # the final state is drawn once
 
 
 def test_tty_bar_is_rate_limited():
