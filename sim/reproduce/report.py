@@ -74,7 +74,9 @@ def _units(inp: ReportInputs) -> list[str]:
         "the velocities on the platter is impossible (990 deg/s of the platter is "
         f"{990 * TOTAL_RATIO / 6:,.0f} rpm at the motor, far beyond a 24 V motor). The "
         "3.5 s arrival only fixes the *ratio* of the position and velocity units, so the "
-        "motor shaft would fit the timing too; the output shaft is chosen because 990 deg/s "
+        "motor shaft would fit the timing too (and the encoder sits on the motor, so a "
+        "firmware reporting raw encoder degrees would print motor degrees; 990 deg/s would "
+        "then be only 165 rpm at the motor); the output shaft is chosen because 990 deg/s "
         "then sits near the top speed of a 24 V motor through 80:1, which is what makes 990 "
         "a natural cruise speed. I found nothing in the paper that contradicts this reading.",
         "* **Can the bench deliver it?** In the Fig. 6 run without planning the bench model, "
@@ -455,7 +457,8 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
     return [
         "## 5. Where the data comes from",
         "",
-        f'Every curve and number in this report (except the "true" current) is what the simulated '
+        'Every curve and number in this report (except the "true" current, section 3\'s '
+        "planner-only table and the planner columns of section 6) is what the simulated "
         f"PC decoded from the board's `Telemetry` frames on the emulated UART, as in the paper "
         f"where the PC plotted what the board sent. At {inp.baud} baud (8N1) one "
         f"{frame.TELEMETRY_FRAME_BYTES}-byte frame per {1000 / inp.tick_hz:g} ms tick is "
