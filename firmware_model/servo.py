@@ -1,28 +1,35 @@
 """The control law of one servo tick: encoder unwrap, velocity observer, position P ->
 velocity PI -> current PI -> PWM duty, with clamps and anti-windup.
 
-Two interchangeable implementations with the same methods and attributes:
+Interchangeable implementations with the same methods and attributes:
 
 * :class:`ScalarLaw`: one axis in plain Python floats (the fast path for ``batch=None``).
+* :class:`ScalarFixedLaw`: one axis in saturating int32 Q16.16 / Q8.24 on Python ints
+  (``arithmetic = "fixed"``, ``batch=None``).
 * :class:`ArrayLaw`: ``N`` axes in lock-step on numpy arrays of shape ``(N,)``, in float64
   or in saturating int32 Q-format (``fixed=True``; see ``firmware_model/fixedpoint.py``).
-  ``ArrayLaw(fixed=False)`` with N = 1 computes exactly what ``ScalarLaw`` computes (tested).
+
+``ArrayLaw`` with N = 1 computes bit for bit what the scalar law of the same arithmetic
+computes (tested): the same operations in the same order.
 
 The order of one servo tick (seed 000 Fig. 5), with the firmware's shell around it:
 
-1. :meth:`estimate`: unwrap the 14-bit reading around the observer's *prediction* (so a motor
-   turning up to half a revolution per tick off the prediction unwraps correctly), then an
-   alpha-beta observer (a type-2 tracking loop, the digital PLL of a resolver-to-digital
-   converter) gives the velocity; the plain difference is kept as ``vel_raw_dps``.
+1. :meth:`estimate`: unwrap the 14-bit reading around the observer's *prediction* (so the
+   motor may turn more than half a revolution per tick as long as the prediction is within
+   half a revolution), then a third-order observer (position, velocity, acceleration
+   disturbance; the sensed current as a known acceleration) gives the velocity; the plain
+   difference is kept as ``vel_raw_dps``.
 2. :meth:`servo`: position error -> ``v_ref = Kp_pos e + vel_ff sp_vel`` clamped to the velocity
    limit -> ``i_ref = Kp_vel (v_ref - vel) + I + acc_ff sp_acc`` clamped to the current limit,
    integrating only when that does not push further into the clamp (conditional integration).
 3. :meth:`current` (``current_loop_multiple`` times per tick): the sensed current is the
-   BTN7971 IS reading (high side only) signed by the duty being applied;
-   ``u = R i_ref + k_emf vel + Kp e + I`` volts, clamped to ``duty_limit * supply_v``
-   with the same anti-windup, divided by the supply and quantised to the timer's ARR steps.
-   The duty computed now is returned ``compute_delay_ticks`` calls later (the timer loads
-   the compare register at its next update event).
+   BTN7971 IS reading (high side only) signed by the duty being applied (or, while the
+   sense is blind to a current against the duty, the reference); the PI error compares it
+   with the reference of the duty that produced it; ``u = R i_ref + k_emf vel + Kp e + I``
+   volts, clamped to ``duty_limit * supply_v`` with the same anti-windup, divided by the
+   supply and quantised to the timer's ARR steps. The duty computed now is returned
+   ``compute_delay_ticks`` calls later (the timer loads the compare register at its next
+   update event).
 """
 
 from __future__ import annotations
