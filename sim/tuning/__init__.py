@@ -1,0 +1,8 @@
+"""Offline tuning of the current, velocity and position loops (``turntable-sim tune``).
+
+One module per idea: ``gains`` (the tuned gain set), ``linear`` (discrete loop transfers,
+margins, Bode data, the stability gate), ``baselines`` (classic formulas), ``relay`` (relay
+auto-tune on the simulated bench), ``cost`` (cost terms of a closed-loop run), ``optimise``
+(differential evolution over lock-step batches), ``robust`` (worst case over a plant
+spread), ``plots`` and ``report``. See docs/tuning.md.
+"""
