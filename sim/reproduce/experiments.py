@@ -36,6 +36,7 @@ __all__ = [
     "scale_quick",
     "to_scurve",
     "with_duration",
+    "write_telemetry_csv",
 ]
 
 # --quick runs the same planning problems with every time divided by 4: positions / 16,
@@ -292,3 +293,34 @@ class Runner:
             trace = run_trace(name, exp, progress=bar.callback, seed=self.seed)
         self.ticks += n_ticks
         return trace
+
+
+def write_telemetry_csv(trace: Trace, path: Any) -> Any:
+    """Write the decoded telemetry of ``trace`` as the PC records it (the columns of
+    ``monitor --csv`` and ``decode``: ``serial_protocol.telemetry_csv``), so that a capture
+    from a real board can be compared with the simulation column by column."""
+    from pathlib import Path
+
+    from serial_protocol.messages import Fault, State, Telemetry
+    from serial_protocol.telemetry_csv import TelemetryCsvWriter
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    ticks = np.round(trace.t_s / trace.dt_s).astype(np.int64)
+    with open(path, "w", newline="", encoding="utf-8") as fh:
+        writer = TelemetryCsvWriter(fh, tick_hz=1.0 / trace.dt_s)
+        for k in range(len(ticks)):
+            writer.write(
+                Telemetry(
+                    int(ticks[k]),
+                    float(trace.sp_pos_deg[k]),
+                    float(trace.sp_vel_dps[k]),
+                    float(trace.pos_deg[k]),
+                    float(trace.vel_dps[k]),
+                    float(trace.current_a[k]),
+                    float(trace.duty[k]),
+                    State(int(trace.state[k])),
+                    Fault(int(trace.fault[k])),
+                )
+            )
+    return path

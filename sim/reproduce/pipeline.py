@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import Any
 
 from sim.reproduce import fig6, fig7, fig8, lookahead_demo, report, scurve_extras, seed002
-from sim.reproduce.experiments import Runner, load
+from sim.reproduce.experiments import Runner, load, write_telemetry_csv
 
-__all__ = ["FIGURES", "ReproduceOutput", "reproduce"]
+__all__ = ["FIGURES", "TELEMETRY_DIR", "ReproduceOutput", "reproduce"]
 
 FIGURES = (
     "fig6.png",
@@ -22,6 +22,8 @@ FIGURES = (
     "fig8_scurve.png",
     "lookahead.png",
 )
+# The decoded telemetry of the paper's runs, as CSV (the columns of `monitor --csv`).
+TELEMETRY_DIR = "telemetry"
 # fig6 (2) + fig7 (4) + fig8 (1) + seed 002 (1) + S-curve fig7 (4) + fig8 (1) + look-ahead (2)
 _RUNS_ALL = 15
 _RUNS_PAPER = 7
@@ -72,6 +74,11 @@ def reproduce(
         fig7.plot(r7, out / "fig7.png", limit_a),
         fig8.plot(r8, out / "fig8.png", limit_a),
     ]
+    tel = out / TELEMETRY_DIR
+    traces = [("fig6_step", r6.step), ("fig6_trapezoid", r6.planned), ("fig8", r8.trace)]
+    traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
+    for stem, trace in traces:
+        paths.append(write_telemetry_csv(trace, tel / f"{stem}.csv"))
     s2 = sc = la = None
     if extras:
         s2 = seed002.run(runner)
@@ -102,7 +109,7 @@ def reproduce(
         acc_ff_a_per_dps2=float(bench.firmware.velocity.acc_ff_a_per_dps2),
         quick=quick,
         wall_s=wall_s,
-        figures=tuple(p.name for p in paths),
+        figures=tuple(p.name for p in paths if p.suffix == ".png"),
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

@@ -466,7 +466,8 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
         f"({line:,.0f} B/s): no decimation, one frame per tick. Over the runs of Fig. 6-8 the PC "
         f"decoded {frames:,} telemetry frames with {gaps} missing ticks and {crc} CRC errors. The "
         "telemetry carries positions and velocities in steps of 1e-4 deg and 1e-4 deg/s and "
-        "the current in mA.",
+        "the current in mA. The decoded frames of every Fig. 6-8 run are in `telemetry/*.csv`, "
+        "in the columns `turntable-sim monitor --csv` writes for a real board.",
         "",
     ]
 

@@ -9,14 +9,17 @@ test: Fig. 7, Fig. 8, the S-curve and look-ahead runs in their time-scaled form 
 from __future__ import annotations
 
 import argparse
+import csv
 
 import numpy as np
 import pytest
 
+from serial_protocol.telemetry_csv import TELEMETRY_CSV_COLUMNS
 from sim.commands import reproduce as reproduce_cmd
 from sim.reproduce import FIGURES, fig6, fig8
 from sim.reproduce.experiments import QUICK_TIME_SCALE
 from sim.reproduce.metrics import ARRIVAL_TOL_DEG, replan_steps
+from sim.reproduce.pipeline import TELEMETRY_DIR
 
 # Noise margin on the *measured* velocity step at a replan, on top of a_max * dt: the
 # board's velocity estimate (300 rad/s observer on the 1-LSB-rms encoder noise) moves by
@@ -38,12 +41,28 @@ def output(tmp_path_factory):
 
 
 def test_the_command_writes_every_file(output):
-    names = {p.name for p in output.paths}
+    names = {p.name for p in output.paths if p.parent == output.out_dir}
     assert names == set(FIGURES) | {"REPORT.md"}
+    csvs = {p.name for p in output.paths if p.parent.name == TELEMETRY_DIR}
+    expected = {"fig6_step.csv", "fig6_trapezoid.csv", "fig8.csv"}
+    assert csvs == expected | {f"fig7_S_{k}.csv" for k in range(1, 5)}
     for name in FIGURES:
         data = (output.out_dir / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000, name
     assert (output.out_dir / "REPORT.md").stat().st_size > 5_000
+
+
+def test_telemetry_csv_holds_what_the_pc_decoded(output):
+    trace = output.inputs.fig8.trace
+    path = output.out_dir / TELEMETRY_DIR / "fig8.csv"
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert tuple(rows[0]) == TELEMETRY_CSV_COLUMNS
+    assert len(rows) - 1 == len(trace.t_s)
+    col = {name: k for k, name in enumerate(rows[0])}
+    pos = np.array([float(r[col["pos_deg"]]) for r in rows[1:]])
+    np.testing.assert_array_equal(pos, trace.pos_deg)
+    assert {r[col["fault"]] for r in rows[1:]} == {"NONE"}
 
 
 def test_fig7_targets_take_strategies_a_to_d_and_only_s1_s4_cruise(output):
