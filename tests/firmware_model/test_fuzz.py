@@ -4,9 +4,11 @@ firmware never raises, answers every command once, and keeps its output invarian
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from firmware_model.params import FirmwareParams, ServoParams
 from serial_protocol.messages import (
     Ack,
     ClearFault,
@@ -76,15 +78,19 @@ def _command():
     )
 
 
+@pytest.mark.parametrize("variant", ["float", "fixed", "batch"])
 @settings(
-    max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(
     script=st.dictionaries(st.integers(0, 79), st.lists(_command(), min_size=1, max_size=3)),
     garbage=st.dictionaries(st.integers(0, 79), st.binary(max_size=20), max_size=3),
 )
-def test_random_command_streams(make_bench, script, garbage):
-    b = make_bench()
+def test_random_command_streams(make_bench, variant, script, garbage):
+    if variant == "fixed":
+        b = make_bench(FirmwareParams(servo=ServoParams(arithmetic="fixed")))
+    else:
+        b = make_bench(batch=2 if variant == "batch" else None)
     b.run(80, script, rx_raw=garbage)
     n_sent = sum(len(v) for v in script.values())
     replies = [m for m in b.received if isinstance(m, Ack | Nack | Status | Gains | Limits |
@@ -93,13 +99,19 @@ def test_random_command_streams(make_bench, script, garbage):
     # Malformed frame (an extra NACK); without garbage every command is answered once.
     if not garbage:
         assert len(replies) == n_sent
-    duty = b.arr("duty")
+    duty = b.arr("duty").reshape(80, -1)[:, 0]  # member 0 in batch (the one replies describe)
     assert np.all(np.abs(duty) <= 1.0)
     np.testing.assert_allclose(duty * 3600, np.round(duty * 3600), atol=1e-9)
-    state = b.arr("state")
+    state = b.arr("state").reshape(80, -1)[:, 0]
     off = (state == State.DISABLED) | (state == State.FAULT)
     assert np.all(duty[off] == 0.0)
-    assert np.all((state == State.FAULT) == (b.arr("fault") != 0))
+    assert np.all((state == State.FAULT) == (b.arr("fault").reshape(80, -1)[:, 0] != 0))
     counters = b.fw.counters
-    assert counters["faults"] == len(b.replies(FaultReport))
+    if variant == "batch":
+        # Two identical members see identical inputs: they must stay identical.
+        for key in ("pos_deg", "duty", "state", "fault"):
+            np.testing.assert_array_equal(b.arr(key)[:, 0], b.arr(key)[:, 1])
+        assert counters["faults"] == 2 * len(b.replies(FaultReport))
+    else:
+        assert counters["faults"] == len(b.replies(FaultReport))
     assert counters["tx_telemetry_dropped"] == 0 and counters["tx_replies_dropped"] == 0
