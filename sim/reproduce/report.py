@@ -472,6 +472,34 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
     ]
 
 
+def _all_traces(inp: ReportInputs) -> list[Trace]:
+    traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
+    traces += [r.trace for r in inp.fig7.runs]
+    if inp.scurve is not None:
+        traces += [inp.scurve.fig8.trace] + [r.trace for r in inp.scurve.fig7.runs]
+    if inp.lookahead is not None:
+        traces += [inp.lookahead.stop_each, inp.lookahead.lookahead]
+    if inp.seed002 is not None:
+        traces.append(inp.seed002.trace)
+    return traces
+
+
+def _replies(inp: ReportInputs) -> list[str]:
+    traces = _all_traces(inp)
+    sent = sum(len(t.command_t_s) for t in traces)
+    acks = sum(len(t.acks) for t in traces)
+    nacks = [(t.name, n) for t in traces for n in t.nacks]
+    if not nacks and acks == sent:
+        return [f"All {sent} moves of the {len(traces)} runs were acknowledged by the board.", ""]
+    lines = [
+        f"**Warning:** {sent} moves sent, {acks} acknowledged; refused: "
+        + (", ".join(f"{name}: {n}" for name, n in nacks) or "none")
+        + ". The affected runs do not show the experiment as scripted.",
+        "",
+    ]
+    return lines
+
+
 def write_report(inp: ReportInputs, path) -> None:
     """Write REPORT.md to ``path``."""
     lines = [
@@ -494,6 +522,7 @@ def write_report(inp: ReportInputs, path) -> None:
             "002's tables run as written. Run without --quick for the reproduction.",
             "",
         ]
+    lines += _replies(inp)
     lines += _units(inp)
     lines += [
         "## 2. Paper against simulation",

@@ -172,3 +172,13 @@ def test_seed002_tables_run_on_the_bench_as_planned(output):
         d_sp, _, d_pos, _ = table.max_bench_diff()
         assert d_sp <= 1e-4  # the board's setpoint is the planner's sample (wire LSB)
         assert d_pos < 0.2  # the encoder follows within a fraction of a degree
+
+
+def test_every_move_of_every_run_was_acknowledged(output):
+    from sim.reproduce.report import _all_traces
+
+    traces = _all_traces(output.inputs)
+    assert len(traces) == 15
+    for trace in traces:
+        assert trace.nacks == (), trace.name
+        assert len(trace.acks) == len(trace.command_t_s), trace.name
