@@ -1,0 +1,57 @@
+"""The optimiser: it beats the config's gains on an independent re-run, refuses unstable
+candidates without simulating them, and a fixed seed reproduces the result."""
+
+from __future__ import annotations
+
+import pytest
+
+from serial_protocol.exceptions import ConfigError
+from sim.tuning import linear
+from sim.tuning.cost import CostWeights
+from sim.tuning.evaluate import evaluate
+from sim.tuning.gains import GainSet
+from sim.tuning.optimise import TuneSettings, tune
+
+# Wide bounds so that the population straddles the stability boundary of every loop.
+SETTINGS = TuneSettings(seed=3, popsize=4, maxiter=2, bound_factor=12.0)
+
+
+@pytest.fixture(scope="module")
+def tuned(bench, short_move):
+    return tune([short_move], GainSet.from_bench(bench), SETTINGS)
+
+
+def test_tuned_gains_beat_the_defaults(bench, short_move, tuned):
+    start = GainSet.from_bench(bench)
+    # A fresh batch (other members, other noise draws than during the search).
+    ev = evaluate([short_move], [tuned.gains, start], weights=CostWeights(), seed=11)
+    assert ev.cost[0] < 0.8 * ev.cost[1]
+    assert tuned.gains != start
+
+
+def test_unstable_candidates_are_refused_and_never_kept(bench, tuned):
+    assert sum(s.refused for s in tuned.stages) > 0
+    assert all(s.simulated > 0 for s in tuned.stages)
+    assert linear.rejection_reasons(bench, tuned.gains, SETTINGS.margins) == []
+    for stage in tuned.stages:
+        assert list(stage.best_per_generation) == sorted(stage.best_per_generation, reverse=True)
+
+
+def test_a_fixed_seed_reproduces_the_result(bench, short_move, tuned):
+    again = tune([short_move], GainSet.from_bench(bench), SETTINGS)
+    assert again.gains == tuned.gains
+    assert [s.cost for s in again.stages] == [s.cost for s in tuned.stages]
+
+
+def test_unstable_start_is_refused(bench, short_move):
+    start = GainSet.from_bench(bench)
+    bad = start.replace(kp_p_per_s=start.kp_p_per_s * 20)
+    with pytest.raises(ConfigError, match="position loop unstable"):
+        tune([short_move], bad, SETTINGS)
+
+
+def test_joint_mode_tunes_all_gains_in_one_stage(bench, short_move):
+    settings = TuneSettings(seed=1, mode="joint", popsize=2, maxiter=1)
+    result = tune([short_move], GainSet.from_bench(bench), settings)
+    assert [s.loops for s in result.stages] == [("current", "velocity", "position")]
+    assert result.stages[0].cost <= result.stages[0].start_cost
