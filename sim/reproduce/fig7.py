@@ -154,6 +154,7 @@ def plot(result: Fig7Result, path: str | Path, current_limit_a: float, title: st
     ]
     scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
     v0 = PAPER_V0_DPS / result.time_scale
+    k2 = result.time_scale**2
     return paper_figure(
         curves,
         path,
@@ -161,6 +162,6 @@ def plot(result: Fig7Result, path: str | Path, current_limit_a: float, title: st
         current_limit_a=current_limit_a,
         shade=(-result.run_up_s, 0.0, f"run-up to {v0:g} deg/s"),
         time_label="time from the interrupt (s)",
-        note="Grey: the run-up (move to -200 deg, then towards +50000 deg at 400 deg/s), "
-        "interrupted at 0 deg by the Fig. 7 move.",
+        note=f"Grey: the run-up (move to {-200 / k2:g} deg, then towards {50000 / k2:g} deg at "
+        f"{v0:g} deg/s), interrupted at 0 deg by the Fig. 7 move. Legend: the paper's targets.",
     )
