@@ -165,7 +165,8 @@ def plot(result: LookaheadResult, path: str | Path, current_limit_a: float) -> P
         ],
         path,
         title=f"Waypoint program {wp} deg (v_max {result.v_max_dps:g} deg/s, "
-        f"a_max {result.a_max_dps2:g} deg/s^2)",
+        f"a_max {result.a_max_dps2:g} deg/s^2)"
+        + ("\n(--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""),
         current_limit_a=current_limit_a,
         markers=markers,
         note=f"Each stop is followed by a {DWELL_S:g} s pause (the PC's rule); dotted lines: "
