@@ -27,14 +27,17 @@ against scipy.signal and a hand-derived case; ``docs/tuning.md`` has the equatio
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 from scipy.optimize import brentq
 
+from firmware_model.params import FirmwareParams
 from firmware_model.units import MOTOR_RAD_S_PER_AXIS_DPS
 from serial_protocol.exceptions import ConfigError
 from sim.config import BenchConfig
@@ -48,6 +51,7 @@ __all__ = [
     "MarginSpec",
     "analyse",
     "check_gains",
+    "firmware_gain_check",
     "loop_transfer",
     "margins",
     "rejection_reasons",
@@ -430,3 +434,24 @@ def check_gains(bench: BenchConfig, gains: GainSet, source: str) -> None:
     if reasons:
         values = ", ".join(f"{k} = {v:.6g}" for k, v in gains.as_dict().items())
         raise ConfigError(f"{source}: gains refused ({'; '.join(reasons)}): {values}")
+
+
+def firmware_gain_check(
+    bench: BenchConfig,
+) -> Callable[[FirmwareParams, dict[str, float]], str | None]:
+    """A ``gain_check`` for ``firmware_model.firmware.Firmware(gain_check=...)``: the gate
+    of this module (stability of the three loops on ``bench``'s plant) for gains that
+    arrive over the wire (``SetGains``); returns the reason, or None to accept."""
+
+    def check(params: FirmwareParams, gains: dict[str, float]) -> str | None:
+        trial = GainSet(
+            kp_i_v_per_a=gains["kp_i"],
+            ki_i_v_per_as=gains["ki_i"],
+            kp_v_a_per_dps=gains["kp_v"],
+            ki_v_a_per_deg=gains["ki_v"],
+            kp_p_per_s=gains["kp_p"],
+        )
+        reasons = rejection_reasons(dataclasses.replace(bench, firmware=params), trial)
+        return "; ".join(reasons) or None
+
+    return check

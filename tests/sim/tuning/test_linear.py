@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from firmware_model.firmware import Firmware
 from serial_protocol.exceptions import ConfigError
+from serial_protocol.messages import Ack, Loop, Nack, NackCode
 from sim.config import Experiment, ScriptedCommand
+from sim.loop import run
 from sim.tuning import linear
 from sim.tuning.cost import CostWeights
 from sim.tuning.evaluate import evaluate
@@ -122,3 +125,26 @@ def test_gate_agrees_with_the_simulator(bench):
     ripple = np.std(np.diff(current, axis=1), axis=1)
     assert ripple[1] > 20 * ripple[0]
     assert ripple[1] > 0.5  # amperes per tick: a sustained oscillation, not noise
+
+
+def test_gains_from_the_wire_are_refused_by_the_firmware_with_this_gate(bench):
+    """SetGains over the emulated UART: the board built with ``firmware_gain_check`` NACKs
+    a velocity gain the simulator shows ringing (test above) and accepts a safe one."""
+    gains = GainSet.from_bench(bench)
+    ki = gains.ki_v_a_per_deg
+
+    def set_gains(t_s: float, kp: float) -> ScriptedCommand:
+        return ScriptedCommand(t_s, "set_gains", (("loop", Loop.VELOCITY), ("kp", kp), ("ki", ki)))
+
+    exp = Experiment(
+        bench=bench,
+        duration_s=0.1,
+        commands=(set_gains(0.01, gains.kp_v_a_per_dps * 6), set_gains(0.05, 0.1)),
+    )
+    board = Firmware(bench.firmware, gain_check=linear.firmware_gain_check(bench))
+    replies = run(exp, firmware=board).replies
+    nacks = [m for m in replies if isinstance(m, Nack)]
+    acks = [m for m in replies if isinstance(m, Ack)]
+    assert [n.code for n in nacks] == [NackCode.UNSTABLE_GAINS]
+    assert len(acks) == 1 and acks[0].cmd_id == nacks[0].cmd_id + 1
+    assert board.law.gains["kp_v"] == pytest.approx(0.1)
