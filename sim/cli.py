@@ -15,6 +15,7 @@ from serial_protocol.exceptions import TurntableError
 
 # name -> (module, one-line help). Add a line here when a subcommand lands.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "run": ("sim.commands.run", "run a scripted experiment (TOML) and write log.csv and plot.png"),
     "decode": ("sim.commands.decode", "decode a raw captured serial byte stream to CSV"),
     "monitor": ("sim.commands.monitor", "talk to a board or 'serve --pty': commands, status, CSV"),
     "serve": ("sim.commands.serve", "run the simulated bench in real time behind a pty"),

@@ -230,9 +230,16 @@ class EncoderParams:
 
 @dataclass(frozen=True)
 class UartParams:
-    """The board's UART buffers (the baud rate is the firmware's ``[telemetry] baud``)."""
+    """The board's UART: FIFO size and seeded line faults, per byte, in both directions
+    (``serial_protocol.uart.FaultInjection``). The baud rate is the firmware's
+    ``[telemetry] baud``."""
 
     fifo_bytes: int = 256
+    bit_flip_rate: float = 0.0
+    drop_rate: float = 0.0
+    insert_rate: float = 0.0
+    burst_rate: float = 0.0
+    burst_bytes: int = 4
 
     def __post_init__(self) -> None:
         _check(
@@ -240,6 +247,22 @@ class UartParams:
             "fifo_bytes",
             isinstance(self.fifo_bytes, int) and self.fifo_bytes >= 16,
             "must be an integer >= 16",
+        )
+        rates = ("bit_flip_rate", "drop_rate", "insert_rate", "burst_rate")
+        for name in rates:
+            v = getattr(self, name)
+            _check(self, name, _finite(v) and 0.0 <= v <= 1.0, "must be a probability in [0, 1]")
+        _check(
+            self,
+            "burst_rate",
+            sum(getattr(self, n) for n in rates) <= 1.0,
+            "the four rates must add up to at most 1",
+        )
+        _check(
+            self,
+            "burst_bytes",
+            isinstance(self.burst_bytes, int) and self.burst_bytes >= 1,
+            "must be an integer >= 1",
         )
 
 

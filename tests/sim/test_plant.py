@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+import scipy.linalg
 from scipy.integrate import solve_ivp
 
 from sim import drivetrain
@@ -16,11 +17,13 @@ from sim.plant import (
     B_DIODE_POS,
     B_LIMIT_POS,
     B_OPEN,
+    N_MODES,
     BatchPlant,
     Coefficients,
     ScalarPlant,
     affine,
     derivative,
+    expm_small,
     mode_keys,
 )
 
@@ -63,6 +66,17 @@ def test_zoh_matches_solve_ivp_through_mode_switches():
     err_rev = np.max(np.abs(xs[:, 1] - ref[:, 1])) / (2 * math.pi)
     assert err_rev < 1e-6
     np.testing.assert_allclose(xs[:, 2], ref[:, 2], atol=1e-4)
+
+
+def test_expm_small_matches_scipy_for_every_kind_of_mode():
+    co = Coefficients.from_params(PlantParams())
+    for key in range(0, N_MODES, 7):
+        a, b, e = affine(key, co)
+        m = np.zeros((7, 7))
+        m[:5, :5], m[:5, 5], m[:5, 6] = a, b, e
+        for h, rtol in ((2e-3, 1e-10), (2e-3 / 2**10, 1e-10), (2e-3 / 2**20, 1e-10), (0.1, 1e-8)):
+            ref = scipy.linalg.expm(m * h)
+            np.testing.assert_allclose(expm_small(m * h), ref, rtol=rtol, atol=1e-12)
 
 
 def test_steady_speed_matches_analytic():

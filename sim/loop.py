@@ -1,0 +1,495 @@
+"""The simulation loop: owns the clock, the plant state and the two UART directions.
+
+Per 500 Hz servo tick, in this order (docs/architecture.md, "The plant <-> firmware
+boundary"):
+
+1. the encoder reads the plant (``sim.encoder``),
+2. ``fw.servo_tick(encoder_counts, rx_bytes, tx_free)`` runs the servo tick with the bytes
+   the board's UART received during the previous tick and returns the bytes it queued for
+   the PC, which go into the board's TX FIFO,
+3. ``current_loop_multiple`` times: the ADC reads the IS pin of the present current, then
+   ``fw.current_tick(adc_counts)`` gives ``(duty, enable)`` (the firmware applies its own
+   compute delay), then the plant advances ``dt / multiple`` with that input held,
+4. the log row is written,
+5. both UART directions move the bytes of one tick: PC -> board bytes arrive for the next
+   servo tick, board -> PC bytes are buffered for ``pc_read()``.
+
+The N = 1 path works on plain Python floats and appends to lists (about one list append per
+logged signal per tick); the batch path (``batch=N``) keeps ``(N, 5)`` arrays and writes
+into preallocated ``(N, capacity)`` log arrays. The scripted PC of ``run`` writes its frames
+with ``pc_write`` at their times, exactly as a PC program would.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from serial_protocol import frame
+from serial_protocol.exceptions import ConfigError
+from serial_protocol.messages import Telemetry
+from serial_protocol.uart import EmulatedUart, FaultInjection
+from sim.bridge import adc_counts
+from sim.config import TABLES, BenchConfig, Experiment
+from sim.encoder import Encoder
+from sim.params import PlantParams, UartParams
+from sim.plant import I_A, TWIST, VEL, BatchPlant, ScalarPlant
+
+__all__ = ["LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run"]
+
+# Every logged signal, in CSV column order after t_s (README, "CSV columns").
+FW_FIELDS = (
+    "sp_pos_deg",
+    "sp_vel_dps",
+    "sp_acc_dps2",
+    "pos_deg",
+    "vel_dps",
+    "vel_raw_dps",
+    "current_meas_a",
+    "current_ref_a",
+    "duty",
+    "state",
+    "fault",
+)
+PLANT_FIELDS = (
+    "true_pos_deg",
+    "true_vel_dps",
+    "platter_pos_deg",
+    "motor_pos_rad",
+    "current_a",
+    "voltage_v",
+)
+LOG_FIELDS = ("t_s",) + FW_FIELDS + PLANT_FIELDS
+_INT_FIELDS = ("state", "fault")
+
+
+@dataclass(frozen=True)
+class RunLog:
+    """The whole run, one value per servo tick (``(n_ticks,)``, or ``(N, n_ticks)`` in
+    batch; ``t_s`` is always ``(n_ticks,)``).
+
+    Row k is servo tick k: ``t_s = k * dt_s`` is its sampling instant; the plant signals
+    (``true_*``, ``platter_pos_deg``, ``motor_pos_rad``, ``current_a``) are the state at that
+    instant (what the encoder and ADC sample); the firmware signals are what the firmware
+    computed in tick k from those samples; ``voltage_v`` is what the bridge applied during
+    the tick (the last current-loop period of it). Axis angles (gearmotor output) in degrees unless
+    named ``platter_`` or ``motor_``. ``voltage_v`` is the bridge's average output
+    ``duty * V_supply`` (0 while disabled). ``current_a`` is the true armature current,
+    ``current_meas_a`` the firmware's signed reading of the IS pin.
+    """
+
+    t_s: np.ndarray
+    sp_pos_deg: np.ndarray
+    sp_vel_dps: np.ndarray
+    sp_acc_dps2: np.ndarray
+    pos_deg: np.ndarray
+    vel_dps: np.ndarray
+    vel_raw_dps: np.ndarray
+    current_meas_a: np.ndarray
+    current_ref_a: np.ndarray
+    duty: np.ndarray
+    state: np.ndarray
+    fault: np.ndarray
+    true_pos_deg: np.ndarray
+    true_vel_dps: np.ndarray
+    platter_pos_deg: np.ndarray
+    motor_pos_rad: np.ndarray
+    current_a: np.ndarray
+    voltage_v: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.t_s.shape[0])
+
+    def member(self, k: int) -> RunLog:
+        """Batch member ``k`` as a single-axis log."""
+        return RunLog(**{f: (v if f == "t_s" or v.ndim == 1 else v[k]) for f, v in self.items()})
+
+    def items(self) -> list[tuple[str, np.ndarray]]:
+        return [(f, getattr(self, f)) for f in LOG_FIELDS]
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What ``run`` returns: the log, what the PC decoded, and the link counters."""
+
+    log: RunLog
+    messages: tuple[Any, ...]
+    link: dict[str, int]
+    experiment: Experiment | None = None
+    firmware_counters: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def telemetry(self) -> tuple[Telemetry, ...]:
+        return tuple(m for m in self.messages if isinstance(m, Telemetry))
+
+    @property
+    def replies(self) -> tuple[Any, ...]:
+        return tuple(m for m in self.messages if not isinstance(m, Telemetry))
+
+    def telemetry_arrays(self) -> dict[str, np.ndarray]:
+        """Decoded telemetry as arrays, one per ``Telemetry`` field."""
+        tel = self.telemetry
+        names = [f.name for f in dataclasses.fields(Telemetry)]
+        return {n: np.array([getattr(t, n) for t in tel]) for n in names}
+
+
+# ------------------------------------------------------------------------ overrides
+
+
+def _locate(bench: BenchConfig, table: str) -> tuple[str, str | None]:
+    """Where table ``table`` lives in a BenchConfig: (container attribute, field)."""
+    if table in ("uart", "loop"):
+        return table, None
+    plant_fields = {f.name for f in dataclasses.fields(PlantParams)}
+    if table in plant_fields:
+        return "plant", table
+    cls = TABLES.get(table)
+    for f in dataclasses.fields(bench.firmware):
+        if cls is not None and type(getattr(bench.firmware, f.name)) is cls:
+            return "firmware", f.name
+    raise ConfigError(f"overrides: [{table}]: unknown table (known: {', '.join(sorted(TABLES))})")
+
+
+def apply_overrides(bench: BenchConfig, overrides: Mapping[str, Any]) -> BenchConfig:
+    """A copy of ``bench`` with ``{"table.key": value}`` replaced (value: scalar, or an
+    ``(N,)`` array for one value per batch member). Validated like the TOML file."""
+    for dotted, value in overrides.items():
+        table, _, key = dotted.rpartition(".")
+        container, part_name = _locate(bench, table)
+        holder = getattr(bench, container)
+        part = holder if part_name is None else getattr(holder, part_name)
+        if key not in {f.name for f in dataclasses.fields(part)}:
+            raise ConfigError(f"overrides: [{table}] {key} = {value!r}: unknown key")
+        if isinstance(value, list | tuple):
+            value = np.asarray(value, dtype=float)
+        try:
+            new_part = dataclasses.replace(part, **{key: value})
+            if part_name is None:
+                bench = dataclasses.replace(bench, **{container: new_part})
+            else:
+                new_holder = dataclasses.replace(holder, **{part_name: new_part})
+                bench = dataclasses.replace(bench, **{container: new_holder})
+        except (ValueError, TypeError) as exc:
+            raise ConfigError(f"overrides: [{table}] {key} = {value!r}: {exc}") from None
+    return bench
+
+
+# ------------------------------------------------------------------------ simulation
+
+
+class Simulation:
+    """Firmware + plant + UART, stepped tick by tick; the only owner of clock and state.
+
+    Args:
+        bench: the bench (``sim.config.load_bench``).
+        batch: None for one axis, or N axes in lock-step (parameters or gains may differ
+            per member through ``overrides`` arrays of shape ``(N,)``).
+        seed: seeds the encoder and ADC noise and the UART fault injection.
+        overrides: ``{"table.key": value}`` applied to ``bench`` first.
+        firmware: a firmware object to use instead of ``firmware_model.firmware.Firmware``
+            (anything with ``servo_tick``, ``current_tick`` and ``signals``).
+        record_inputs: keep the ``(duty, enable)`` of every plant step (``inputs()``), e.g.
+            to replay a run through ``solve_ivp``.
+    """
+
+    def __init__(
+        self,
+        bench: BenchConfig,
+        *,
+        batch: int | None = None,
+        seed: int = 0,
+        overrides: Mapping[str, Any] | None = None,
+        firmware: Any = None,
+        record_inputs: bool = False,
+    ) -> None:
+        if overrides:
+            bench = apply_overrides(bench, overrides)
+        if batch is not None and (not isinstance(batch, int) or batch < 1):
+            raise ValueError(f"batch = {batch!r}: must be None or an integer >= 1")
+        n_param = bench.plant.batch_size()
+        if n_param is not None and batch is None:
+            raise ValueError(f"plant parameter arrays of {n_param} members need batch = N")
+        self.bench = bench
+        self.batch = batch
+        self.seed = seed
+        servo = bench.firmware.servo
+        self.dt_s = servo.dt_s
+        self.multiple = servo.current_loop_multiple
+        self.h_s = self.dt_s / self.multiple
+        if firmware is None:
+            from firmware_model.firmware import Firmware
+
+            firmware = Firmware(bench.firmware, batch=batch)
+        self.fw = firmware
+        self._rng = np.random.default_rng(seed)
+        plant = bench.plant
+        self.encoder = Encoder(plant.encoder, self._rng)
+        levels = bench.loop.event_levels
+        self._sense = plant.current_sense
+        self._a_per_lsb = float(np.asarray(plant.current_sense.a_per_lsb).flat[0])
+        self._adc_full = (1 << plant.current_sense.adc_bits) - 1
+        self._adc_noise = plant.current_sense.noise_rms_lsb
+        self._vs = plant.supply.voltage_v
+        self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
+        self._n_total = plant.total_ratio
+        if batch is None:
+            self.plant: ScalarPlant | BatchPlant = ScalarPlant(plant, self.h_s, levels)
+            self._x: Any = [0.0] * 5
+        else:
+            self.plant = BatchPlant(plant, batch, self.h_s, levels)
+            self._x = np.zeros((batch, 5))
+        self._duty: Any = 0.0 if batch is None else np.zeros(batch)
+        self._enable: Any = False if batch is None else np.zeros(batch, dtype=bool)
+        uart = bench.uart
+        baud = bench.firmware.telemetry.baud
+        faults = uart_faults(uart)
+        self.uart_tx = EmulatedUart(baud, uart.fifo_bytes, faults, seed=seed * 2 + 1)
+        self.uart_rx = EmulatedUart(baud, uart.fifo_bytes, faults, seed=seed * 2 + 2)
+        self._pc_out = bytearray()  # PC-side buffer (an OS serial driver's queue)
+        self._pc_in = bytearray()
+        self._rx_for_board = b""
+        self.tick = 0
+        self._record_inputs = record_inputs
+        self._inputs: list[tuple[Any, Any]] = []
+        if batch is None:
+            self._rows: dict[str, list[Any]] = {f: [] for f in LOG_FIELDS}
+        else:
+            self._cap = 0
+            self._arrays: dict[str, np.ndarray] = {}
+            self._t: list[float] = []
+
+    # ---------------------------------------------------------------- public API
+    @property
+    def t_s(self) -> float:
+        """Simulated time now, ``tick * dt_s`` (the start of the next tick) (s)."""
+        return self.tick * self.dt_s
+
+    @property
+    def plant_state(self) -> np.ndarray:
+        """A copy of the plant state, ``(5,)`` or ``(N, 5)`` (see ``sim.plant``)."""
+        return np.array(self._x, dtype=float)
+
+    def pc_write(self, data: bytes) -> None:
+        """Bytes from the PC to the board; they enter the board's RX line as it has room."""
+        self._pc_out += data
+
+    def pc_read(self) -> bytes:
+        """Bytes the PC received from the board since the last call."""
+        out = bytes(self._pc_in)
+        self._pc_in.clear()
+        return out
+
+    def inputs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(duty, enable)`` of every plant step so far (needs ``record_inputs=True``)."""
+        if not self._record_inputs:
+            raise ValueError("record_inputs = False: construct the Simulation with True")
+        duty = np.array([d for d, _ in self._inputs], dtype=float)
+        enable = np.array([e for _, e in self._inputs], dtype=bool)
+        return duty, enable
+
+    def step(self, n_ticks: int = 1) -> None:
+        """Advance ``n_ticks`` servo ticks."""
+        if self.batch is None:
+            for _ in range(n_ticks):
+                self._step_scalar()
+        else:
+            for _ in range(n_ticks):
+                self._step_batch()
+
+    def log(self) -> RunLog:
+        """The log so far as numpy arrays (copies)."""
+        if self.batch is None:
+            cols = {}
+            for f, values in self._rows.items():
+                dtype = np.int64 if f in _INT_FIELDS else float
+                cols[f] = np.array(values, dtype=dtype)
+            return RunLog(**cols)
+        n = self.tick
+        cols = {f: self._arrays[f][:, :n].copy() for f in LOG_FIELDS if f != "t_s"}
+        cols["t_s"] = np.arange(n) * self.dt_s
+        return RunLog(**cols)
+
+    def link_stats(self) -> dict[str, int]:
+        """UART counters of both directions, prefixed ``tx_`` (board -> PC) and ``rx_``."""
+        out = {}
+        for prefix, uart in (("board_to_pc_", self.uart_tx), ("pc_to_board_", self.uart_rx)):
+            for f in dataclasses.fields(uart.stats):
+                out[prefix + f.name] = getattr(uart.stats, f.name)
+        out["pc_pending_bytes"] = len(self._pc_out)
+        return out
+
+    # ---------------------------------------------------------------- the tick
+    def _move_bytes(self) -> None:
+        rx = self.uart_rx
+        if self._pc_out:
+            n = rx.write(bytes(self._pc_out[: rx.free]))
+            del self._pc_out[:n]
+        self._rx_for_board = rx.advance(self.dt_s)
+        self._pc_in += self.uart_tx.advance(self.dt_s)
+
+    def _step_scalar(self) -> None:
+        fw = self.fw
+        plant = self.plant
+        x = self._x
+        rows = self._rows
+        t = self.tick * self.dt_s
+        # Plant signals at the sampling instant, where the firmware sees them.
+        pos = x[1]
+        rows["t_s"].append(t)
+        rows["true_pos_deg"].append(pos * self._deg_per_rad_axis)
+        rows["true_vel_dps"].append(x[VEL] * self._deg_per_rad_axis)
+        rows["platter_pos_deg"].append(math.degrees(pos / self._n_total - x[TWIST]))
+        rows["motor_pos_rad"].append(pos)
+        rows["current_a"].append(x[I_A])
+        counts = self.encoder.read(x)
+        tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
+        if tx:
+            self.uart_tx.write(tx)
+        a_per_lsb = self._a_per_lsb
+        for _ in range(self.multiple):
+            d = self._duty
+            i = x[I_A]
+            if self._enable and d:
+                sensed = i if d > 0 else -i
+                sensed = sensed if sensed > 0 else 0.0
+            else:
+                sensed = 0.0
+            c = sensed / a_per_lsb + 0.5
+            if self._adc_noise:
+                c += self._adc_noise * self._rng.standard_normal()
+            adc = min(max(math.floor(c), 0), self._adc_full)
+            duty, enable = fw.current_tick(adc)
+            d = float(duty)
+            en = bool(enable)
+            self._duty, self._enable = d, en
+            if self._record_inputs:
+                self._inputs.append((d, en))
+            x = plant.update(t, x, (d, en))
+            t += self.h_s
+        self._x = x
+        self.tick += 1
+        sig = fw.signals()
+        for f in FW_FIELDS:
+            rows[f].append(sig[f])
+        rows["voltage_v"].append(self._duty * self._vs if self._enable else 0.0)
+        self._move_bytes()
+
+    def _grow(self) -> None:
+        cap = max(1024, 2 * self._cap)
+        n = self.batch
+        for f in LOG_FIELDS:
+            if f == "t_s":
+                continue
+            dtype = np.int64 if f in _INT_FIELDS else float
+            new = np.zeros((n, cap), dtype=dtype)
+            if f in self._arrays:
+                new[:, : self._cap] = self._arrays[f]
+            self._arrays[f] = new
+        self._cap = cap
+
+    def _step_batch(self) -> None:
+        fw = self.fw
+        plant = self.plant
+        x = self._x
+        k = self.tick
+        if k >= self._cap:
+            self._grow()
+        arrays = self._arrays
+        # Plant signals at the sampling instant, where the firmware sees them.
+        pos = x[:, 1]
+        arrays["true_pos_deg"][:, k] = pos * self._deg_per_rad_axis
+        arrays["true_vel_dps"][:, k] = x[:, VEL] * self._deg_per_rad_axis
+        arrays["platter_pos_deg"][:, k] = np.degrees(pos / self._n_total - x[:, TWIST])
+        arrays["motor_pos_rad"][:, k] = pos
+        arrays["current_a"][:, k] = x[:, I_A]
+        counts = self.encoder.read_batch(x)
+        tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
+        if tx:
+            self.uart_tx.write(tx)
+        t = k * self.dt_s
+        for _ in range(self.multiple):
+            sensed = np.where(self._enable, np.maximum(0.0, np.sign(self._duty) * x[:, I_A]), 0.0)
+            noise = (
+                self._adc_noise * self._rng.standard_normal(self.batch)
+                if np.any(self._adc_noise)
+                else 0.0
+            )
+            adc = adc_counts(sensed, self._sense, noise)
+            duty, enable = fw.current_tick(adc)
+            # Copies: the firmware may reuse its output arrays.
+            self._duty = np.array(duty, dtype=float)
+            self._enable = np.array(enable, dtype=bool)
+            if self._record_inputs:
+                self._inputs.append((self._duty.copy(), self._enable.copy()))
+            x = plant.update(t, x, (self._duty, self._enable))
+            t += self.h_s
+        self._x = x
+        sig = fw.signals()
+        for f in FW_FIELDS:
+            arrays[f][:, k] = sig[f]
+        arrays["voltage_v"][:, k] = np.where(self._enable, self._duty * self._vs, 0.0)
+        self.tick += 1
+        self._move_bytes()
+
+
+def run(
+    exp: Experiment,
+    *,
+    seed: int = 0,
+    batch: int | None = None,
+    progress: Callable[[int, int], None] | None = None,
+    overrides: Mapping[str, Any] | None = None,
+    firmware: Any = None,
+) -> RunResult:
+    """Run an experiment: the scripted PC sends each command as a wire frame through the
+    emulated UART at its time, the board answers, the PC decodes what it receives.
+
+    ``progress(tick, n_ticks)`` is called about 200 times over the run and at its end.
+    """
+    sim = Simulation(exp.bench, batch=batch, seed=seed, overrides=overrides, firmware=firmware)
+    n_ticks = int(round(exp.duration_s / sim.dt_s))
+    # Each command goes out at the first tick boundary at or after its time.
+    schedule = [(math.ceil(c.t_s / sim.dt_s - 1e-9), c) for c in exp.commands]
+    decoder = frame.Decoder()
+    messages: list[Any] = []
+    seq = 0
+    cmd_id = 0
+    nxt = 0
+    every = max(1, n_ticks // 200)
+    for tick in range(n_ticks):
+        while nxt < len(schedule) and schedule[nxt][0] <= tick:
+            cmd = schedule[nxt][1]
+            cmd_id = (cmd_id + 1) & 0xFFFF
+            m = cmd.message(cmd_id)
+            if isinstance(m, bytes):
+                sim.pc_write(m)
+            else:
+                sim.pc_write(frame.encode(m, seq))
+                seq = (seq + 1) & 0xFF
+            nxt += 1
+        sim.step()
+        data = sim.pc_read()
+        if data:
+            messages.extend(decoder.feed(data))
+        if progress is not None and (tick + 1) % every == 0:
+            progress(tick + 1, n_ticks)
+    if progress is not None and n_ticks % every:
+        progress(n_ticks, n_ticks)
+    link = sim.link_stats()
+    for name, value in dataclasses.asdict(decoder.stats()).items():
+        link["pc_decoder_" + name] = value
+    counters = dict(getattr(sim.fw, "counters", {}))
+    return RunResult(sim.log(), tuple(messages), link, exp, counters)
+
+
+def uart_faults(uart: UartParams) -> FaultInjection | None:
+    """The line faults of ``[uart]`` (both directions), or None for a clean line."""
+    rates = (uart.bit_flip_rate, uart.drop_rate, uart.insert_rate, uart.burst_rate)
+    if not any(rates):
+        return None
+    return FaultInjection(*rates, burst_bytes=uart.burst_bytes)
