@@ -1,5 +1,6 @@
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -114,3 +115,31 @@ def test_property_valid_profile(p0, dist, v_max, a_max, j_max, v0_frac, a0_frac,
     v_start_max = max(v_max, abs(v0), abs(v_natural))
     check(prof, v_max=v_max, a_max=a_max, j_max=j_max, v_start_max=v_start_max)
     assert prof.at(0.0)[2] == pytest.approx(a0, abs=1e-12 * a_max)
+
+
+@settings(settings.get_profile("planner"))
+@given(
+    dist=st.floats(-100.0, 100.0),
+    v_max=st.floats(0.5, 20.0),
+    a_max=st.floats(0.5, 50.0),
+    j_max=st.floats(0.5, 200.0),
+    over=st.floats(1.01, 3.0),
+    sign=st.sampled_from([-1.0, 1.0]),
+    a0_frac=st.floats(-1.0, 1.0),
+)
+def test_property_start_above_v_max_brakes_back_first(
+    dist, v_max, a_max, j_max, over, sign, a0_frac, check
+):
+    """From |v0| > v_max (a replan that lowered v_max) the speed never grows beyond |v0| and
+    is back within v_max for good no later than the fastest settled brake to v_max."""
+    v0, a0 = sign * over * v_max, a0_frac * a_max
+    prof = plan_scurve(0.0, dist, v_max=v_max, a_max=a_max, j_max=j_max, v0=v0, a0=a0)
+    v_nat = v0 + a0 * abs(a0) / (2 * j_max)
+    check(prof, v_max=v_max, a_max=a_max, j_max=j_max, v_start_max=max(abs(v0), abs(v_nat)))
+    side = 1.0 if (v0 if abs(v0) > v_max else v_nat) > 0 else -1.0
+    t_brake = sum(dt for dt, _ in velocity_pulse(v0, a0, side * v_max, a_max, j_max))
+    t = np.linspace(0.0, prof.duration, 20001)
+    _, v, _ = prof.at(t)
+    over_limit = np.nonzero(np.abs(v) > v_max * (1 + 1e-6))[0]
+    if over_limit.size:
+        assert t[over_limit[-1]] <= t_brake * (1 + 1e-6) + (t[1] - t[0])
