@@ -1,14 +1,18 @@
 """``turntable-sim decode FILE``: decode a raw captured byte stream (board → PC, or PC →
-board) to CSV and print the link statistics."""
+board) to CSV and print the link statistics. A python-can log (``.asc``, ``.blf``, ``.trc``,
+as ``monitor can://... --capture`` writes) is reassembled from its CAN frames instead."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
+from typing import Any
 
 HELP = "decode a raw captured serial byte stream to CSV and print link statistics"
 
 CHUNK_BYTES = 1 << 16
+CAN_LOG_SUFFIXES = (".asc", ".blf", ".trc")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,6 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--tick-hz", type=float, default=500.0, help="servo rate for the t_s column (500)"
+    )
+    parser.add_argument(
+        "--can-base-id",
+        type=lambda text: int(text, 0),
+        default=0x100,
+        help="CAN logs: identifier of message type 0 (0x100)",
     )
     parser.add_argument(
         "--messages",
@@ -47,10 +57,13 @@ def main(args: argparse.Namespace) -> int:
     tick_steps: Counter[int] = Counter()
     last_tick: int | None = None
     total_bytes = 0
+    is_can_log = args.file.lower().endswith(CAN_LOG_SUFFIXES)
     with contextlib.ExitStack() as stack:
         try:
             if args.file == "-":
                 source = sys.stdin.buffer
+            elif is_can_log:
+                source = None
             else:
                 source = stack.enter_context(open(args.file, "rb"))
         except OSError as exc:
@@ -76,22 +89,36 @@ def main(args: argparse.Namespace) -> int:
                 elif args.messages or isinstance(msg, Malformed):
                     print(f"  {msg}", file=report)
 
-        while chunk := source.read(CHUNK_BYTES):
-            total_bytes += len(chunk)
-            handle(decoder.feed(chunk))
-        handle(decoder.flush())
+        if is_can_log:
+            reassembler = _decode_can_log(args.file, args.can_base_id, handle)
+        else:
+            while chunk := source.read(CHUNK_BYTES):
+                total_bytes += len(chunk)
+                handle(decoder.feed(chunk))
+            handle(decoder.flush())
 
-    stats = decoder.stats()
-    print(f"decoded {total_bytes} bytes from {args.file}", file=report)
+    if is_can_log:
+        c = reassembler.stats
+        print(f"decoded {c.frames} CAN frames from {args.file}", file=report)
+    else:
+        print(f"decoded {total_bytes} bytes from {args.file}", file=report)
     for name, count in sorted(kinds.items()):
         print(f"  {name:<14} {count}", file=report)
-    print(
-        f"  frames {stats.frames}, malformed {stats.malformed}, crc errors {stats.crc_errors}, "
-        f"header errors {stats.header_errors}, resyncs {stats.resyncs}, "
-        f"bytes dropped {stats.bytes_dropped}, sequence gaps {stats.seq_gaps} "
-        f"(~{stats.frames_missed} frames lost)",
-        file=report,
-    )
+    if is_can_log:
+        print(
+            f"  messages {c.messages}, malformed {c.malformed}, reassembly errors "
+            f"{c.reassembly_errors}, other identifiers {c.foreign_ids}",
+            file=report,
+        )
+    else:
+        stats = decoder.stats()
+        print(
+            f"  frames {stats.frames}, malformed {stats.malformed}, crc errors "
+            f"{stats.crc_errors}, header errors {stats.header_errors}, resyncs "
+            f"{stats.resyncs}, bytes dropped {stats.bytes_dropped}, sequence gaps "
+            f"{stats.seq_gaps} (~{stats.frames_missed} frames lost)",
+            file=report,
+        )
     if tick_steps:
         # the telemetry period is the most common tick step; the others are gaps
         step = tick_steps.most_common(1)[0][0]
@@ -103,3 +130,23 @@ def main(args: argparse.Namespace) -> int:
     if csv_path != "-":
         print(f"wrote {writer.rows} telemetry rows to {csv_path}", file=report)
     return 0
+
+
+def _decode_can_log(path: str, base_id: int, handle: Callable[[list], None]) -> Any:
+    """Feed every classic CAN frame of a python-can log through a ``CanReassembler``."""
+    import can
+
+    from serial_protocol.can_link import CanReassembler
+    from serial_protocol.exceptions import CommandError
+
+    reassembler = CanReassembler(base_id)
+    try:
+        reader = can.LogReader(path)
+        for frame in reader:
+            if not frame.is_extended_id and not frame.is_remote_frame:
+                msg = reassembler.feed(frame.arbitration_id, bytes(frame.data))
+                if msg is not None:
+                    handle([msg])
+    except (OSError, ValueError) as exc:
+        raise CommandError(f"cannot read the CAN log {path!r}: {exc}") from exc
+    return reassembler

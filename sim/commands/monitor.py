@@ -71,7 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--duration", type=float, default=5.0, help="seconds to listen after the commands (5)"
     )
     parser.add_argument("--csv", metavar="FILE", help="record the telemetry to this CSV")
-    parser.add_argument("--capture", metavar="FILE", help="record the raw received bytes")
+    parser.add_argument(
+        "--capture",
+        metavar="FILE",
+        help="record the raw received bytes (serial), or every CAN frame (can://; .asc or "
+        ".blf, python-can's writers)",
+    )
     parser.add_argument("--interactive", action="store_true", help="read commands from stdin")
     parser.add_argument("--ack-timeout", type=float, default=0.1, help="seconds (0.1)")
     parser.add_argument("--retries", type=int, default=3, help="retries per command (3)")
@@ -87,10 +92,13 @@ def main(args: argparse.Namespace) -> int:
     from serial_protocol.telemetry_csv import TelemetryCsvWriter
 
     with contextlib.ExitStack() as stack:
-        capture = None
-        if args.capture:
-            capture = stack.enter_context(_open(args.capture, "wb"))
-        link = stack.enter_context(_open_link(args.url, args.baud, capture))
+        if args.url.startswith("can://"):
+            link = stack.enter_context(_open_can(args.url, args.capture))
+        else:
+            from serial_protocol.transport import SerialLink
+
+            capture = stack.enter_context(_open(args.capture, "wb")) if args.capture else None
+            link = stack.enter_context(SerialLink.open(args.url, args.baud, capture=capture))
         writer = None
         if args.csv:
             writer = TelemetryCsvWriter(stack.enter_context(_open(args.csv, "w")))
@@ -339,15 +347,11 @@ def _open(path: str, mode: str) -> Any:
         raise CommandError(f"cannot open {path!r}: {exc.strerror}") from exc
 
 
-def _open_link(url: str, baud: int, capture: Any) -> Any:
-    if url.startswith("can://"):
-        from serial_protocol.can_link import CanLink
-        from serial_protocol.exceptions import CommandError
+def _open_can(url: str, log_path: str | None) -> Any:
+    from serial_protocol.can_link import CanLink
+    from serial_protocol.exceptions import CommandError
 
-        interface, _, channel = url[len("can://") :].partition("/")
-        if not interface or not channel:
-            raise CommandError(f"{url!r}: expected can://INTERFACE/CHANNEL")
-        return CanLink.open(interface, channel)
-    from serial_protocol.transport import SerialLink
-
-    return SerialLink.open(url, baud, capture=capture)
+    interface, _, channel = url[len("can://") :].partition("/")
+    if not interface or not channel:
+        raise CommandError(f"{url!r}: expected can://INTERFACE/CHANNEL")
+    return CanLink.open(interface, channel, log_path=log_path)

@@ -148,12 +148,14 @@ def test_parse_command_rejects_bad_input(text):
         monitor.parse_command(RecordingClient(), text)
 
 
-def test_monitor_over_can_virtual_bus(capsys):
+def test_monitor_over_can_virtual_bus_and_decode_its_log(tmp_path, capsys):
     import uuid
 
     from serial_protocol.can_link import CanLink
+    from sim.commands import decode
 
     channel = f"monitor-{uuid.uuid4().hex}"
+    log, out_csv = tmp_path / "run.blf", tmp_path / "live.csv"
     board = CanLink.open("virtual", channel)
     stop = threading.Event()
     received = []
@@ -174,6 +176,7 @@ def test_monitor_over_can_virtual_bus(capsys):
     worker.start()
     try:
         argv = [f"can://virtual/{channel}", "--move", "90", "--duration", "0.2", "--quiet"]
+        argv += ["--capture", str(log), "--csv", str(out_csv)]
         assert run_monitor(argv) == 0
     finally:
         stop.set()
@@ -183,3 +186,13 @@ def test_monitor_over_can_virtual_bus(capsys):
     assert received[1].target_deg == 90.0
     report = capsys.readouterr().out
     assert "commands 2: acks 1" in report and "reassembly errors 0" in report
+    # the BLF log written by python-can decodes to the same telemetry as the live CSV
+    parser = argparse.ArgumentParser()
+    decode.add_arguments(parser)
+    assert decode.main(parser.parse_args([str(log), "-o", str(tmp_path / "log.csv")])) == 0
+    live = out_csv.read_text().splitlines()
+    logged = (tmp_path / "log.csv").read_text().splitlines()
+    assert len(live) > 3 and logged[: len(live)] == live
+    report = capsys.readouterr().out
+    assert "HelloReply     1" in report and "Hello          1" in report
+    assert "Move           1" in report and "reassembly errors 0" in report
