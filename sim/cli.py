@@ -15,10 +15,12 @@ from serial_protocol.exceptions import TurntableError
 
 # name -> (module, one-line help). Add a line here when a subcommand lands.
 COMMANDS: dict[str, tuple[str, str]] = {
+    "reproduce": ("sim.commands.reproduce", "the paper's Fig. 6-8 and Table 1: PNGs and REPORT.md"),
     "run": ("sim.commands.run", "run a scripted experiment (TOML) and write log.csv and plot.png"),
     "decode": ("sim.commands.decode", "decode a raw captured serial byte stream to CSV"),
     "monitor": ("sim.commands.monitor", "talk to a board or 'serve --pty': commands, status, CSV"),
     "serve": ("sim.commands.serve", "run the simulated bench in real time behind a pty"),
+    "tune": ("sim.commands.tune", "tune the three loops' gains offline; writes a tuned TOML"),
 }
 
 
