@@ -187,6 +187,20 @@ def _field_types(cls: type) -> dict[str, Any]:
     return typing.get_type_hints(cls)
 
 
+def _type_problem(value: Any, hint: Any) -> str:
+    """Why ``value`` cannot be a field declared ``hint`` ('' if it can, or if unsure)."""
+    is_number = isinstance(value, int | float) and not isinstance(value, bool)
+    if hint is float and not is_number:
+        return "must be a number"
+    if hint is int and (isinstance(value, bool) or not isinstance(value, int)):
+        return "must be an integer"
+    if hint is bool and not isinstance(value, bool):
+        return "must be true or false"
+    if hint is str and not isinstance(value, str):
+        return "must be a string"
+    return ""
+
+
 def _coerce(value: Any, hint: Any) -> Any:
     """TOML value -> field value: ints where a float is declared become floats, lists
     become arrays; anything else goes to the dataclass's own checks unchanged."""
@@ -206,7 +220,12 @@ def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
                 f"{_where(file, table)} {key} = {value!r}: unknown key "
                 f"(known: {', '.join(sorted(known))})"
             )
-    kwargs = {k: _coerce(v, hints.get(k)) for k, v in values.items()}
+    kwargs = {}
+    for key, value in values.items():
+        reason = _type_problem(value, hints.get(key))
+        if reason:
+            raise ConfigError(f"{_where(file, table)} {key} = {value!r}: {reason}")
+        kwargs[key] = _coerce(value, hints.get(key))
     try:
         return cls(**kwargs)
     except (ValueError, TypeError) as exc:
