@@ -29,6 +29,7 @@ __all__ = [
 ]
 
 BITS_PER_BYTE_8N1 = 10
+_NEVER_BYTES = float(2**62)  # a fault gap no simulation reaches
 #: Share of the line telemetry may use; the rest is left for ACKs, replies and fault reports
 #: (the firmware's `[telemetry] reply_reserve`, 0.2 by default).
 DEFAULT_MAX_UTILISATION = 0.8
@@ -164,6 +165,7 @@ class EmulatedUart:
         "_burst_left",
         "_record",
         "_cumulative",
+        "_log_clean",
     )
 
     def __init__(
@@ -194,9 +196,12 @@ class EmulatedUart:
             rates = (f.bit_flip_rate, f.drop_rate, f.insert_rate, f.burst_rate)
             total = f.total_rate
             self._cumulative = tuple(sum(rates[: k + 1]) / total for k in range(4))
+            # log of the probability that a byte is clean, for the geometric gap draws
+            self._log_clean = math.log1p(-total) if total < 1.0 else -math.inf
             self._countdown = self._draw_gap()
         else:
             self._cumulative = ()
+            self._log_clean = 0.0
             self._countdown = 0
 
     @property
@@ -256,11 +261,12 @@ class EmulatedUart:
 
     def _draw_gap(self) -> int:
         """Number of clean bytes before the next faulty one (geometric)."""
-        p = self.faults.total_rate  # type: ignore[union-attr]
-        if p >= 1.0:
+        log_clean = self._log_clean
+        if log_clean == -math.inf:  # total rate 1: every byte is faulty
             return 0
-        u = self._rng.random()
-        return int(math.log1p(-u) / math.log1p(-p))
+        if log_clean == 0.0:  # a rate so small that log1p(-p) is 0: practically never
+            return int(_NEVER_BYTES)
+        return int(min(math.log1p(-self._rng.random()) / log_clean, _NEVER_BYTES))
 
     def _inject(self, chunk: bytes, start: int) -> bytes:
         rng = self._rng

@@ -168,6 +168,14 @@ def test_fault_injection_is_seeded_and_counted():
         assert 350 < count < 650  # 1 % of 50 000 bytes each, drawn
 
 
+@pytest.mark.parametrize("rate", [5e-324, 1e-300, 1e-17])
+def test_vanishing_fault_rates_mean_no_faults(rate):
+    faults = FaultInjection(bit_flip_rate=rate, burst_rate=rate)
+    uart = EmulatedUart(baud=921600, fifo_bytes=10_000, faults=faults, seed=3)
+    uart.write(bytes(10_000))
+    assert uart.advance(1.0) == bytes(10_000)
+
+
 def test_different_seeds_give_different_faults():
     faults = FaultInjection(bit_flip_rate=0.01)
     outs = []
