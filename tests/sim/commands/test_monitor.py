@@ -88,6 +88,7 @@ def test_monitor_sends_commands_records_csv_and_reports(tmp_path, capsys):
         "--duration", "0.3",
         "--csv", str(out_csv),
         "--capture", str(capture),
+        "--ack-timeout", "2",
         "--quiet",
     ]  # fmt: skip
     assert run_monitor(argv) == 0
@@ -176,6 +177,7 @@ def test_monitor_over_can_virtual_bus_and_decode_its_log(tmp_path, capsys):
     worker.start()
     try:
         argv = [f"can://virtual/{channel}", "--move", "90", "--duration", "0.2", "--quiet"]
+        argv += ["--ack-timeout", "2"]
         argv += ["--capture", str(log), "--csv", str(out_csv)]
         assert run_monitor(argv) == 0
     finally:
