@@ -120,7 +120,9 @@ class OnlinePlanner:
         if self.profile is None:
             self.moving = False
             return self._p_rest, 0.0, 0.0
-        tau = t_s - self.t_start_s
-        self.moving = tau < self.profile.duration
-        p, v, a = self.profile.at(tau)
-        return float(p), float(v), float(a)
+        profile = self.profile
+        tau = float(t_s) - self.t_start_s
+        self.moving = tau < profile.duration
+        # The scalar evaluator directly: this runs every 2 ms tick (about half the cost of
+        # going through at()'s type dispatch); it returns plain floats.
+        return profile._at_scalar(tau)

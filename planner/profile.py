@@ -20,8 +20,8 @@ special-case the ends:
 
 from __future__ import annotations
 
-import bisect
 import math
+from bisect import bisect_right as _bisect_right
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -109,20 +109,27 @@ class Profile:
             out = np.where((t_arr < 0.0) | (t_arr >= self.duration), 0.0, j[i])
         return float(out) if out.ndim == 0 else out
 
+    @cached_property
+    def _rows(self) -> tuple[tuple[float, float, float, float], ...]:
+        return tuple(zip(self.p, self.v, self.a, self.j, strict=True))
+
     def _at_scalar(self, t: float) -> tuple[float, float, float]:
+        # The firmware's per-tick path: one bisect and one row of coefficients.
+        duration = self.duration
+        if 0.0 <= t < duration:
+            t0 = self.t0
+            i = _bisect_right(t0, t) - 1
+            tau = t - t0[i]
+            p, v, a, j = self._rows[i]
+            jt = j * tau
+            return (
+                p + tau * (v + tau * (0.5 * a + jt / 6.0)),
+                v + tau * (a + 0.5 * jt),
+                a + jt,
+            )
         if t < 0.0:
             return self.p0, self.v0, 0.0
-        if t >= self.duration:
-            return self.p1 + self.v1 * (t - self.duration), self.v1, 0.0
-        i = bisect.bisect_right(self.t0, t) - 1
-        tau = t - self.t0[i]
-        a, j = self.a[i], self.j[i]
-        v = self.v[i]
-        return (
-            self.p[i] + tau * (v + tau * (0.5 * a + tau * j / 6.0)),
-            v + tau * (a + 0.5 * tau * j),
-            a + tau * j,
-        )
+        return self.p1 + self.v1 * (t - duration), self.v1, 0.0
 
     def _at_array(
         self, t: npt.NDArray[np.float64]
