@@ -387,10 +387,8 @@ class Firmware:
         self._enabled = ok.copy()
         self._flags_version += 1
         self._enabled_s = bool(ok[0])
-        if self._array_law:
-            self.law.reset_control()
-        else:
-            self.law.reset_control()
+        self.law.reset_control()
+        self.law.resync()
         self._hold_here()
         self._moved = False
 

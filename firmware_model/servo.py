@@ -129,6 +129,7 @@ class ScalarLaw(_Common):
         """Power-on: the multi-turn count starts at the raw reading, everything at rest."""
         self.count = int(raw_counts)
         self._raw_prev = int(raw_counts)
+        self._d = 0
         self._ep = 0.0
         self._v = 0.0
         self._ad = 0.0
@@ -138,6 +139,16 @@ class ScalarLaw(_Common):
         self.innovation_counts = 0
         self.stuck_ticks = 0
         self.reset_control()
+
+    def resync(self) -> None:
+        """Restart the observer on the encoder: no offset, no disturbance, the last raw
+        difference as the speed (after a glitch, so that its ringing cannot trip anything)."""
+        self._ep = 0.0
+        self._ad = 0.0
+        self._v = float(self._d)
+        self.vel_dps = self._v * self.dps_per_count_tick
+        self.innovation_counts = 0
+        self.stuck_ticks = 0
 
     def reset_control(self) -> None:
         """Zero the integrators, the references and the PWM pipeline (bridge off)."""
@@ -168,6 +179,7 @@ class ScalarLaw(_Common):
         self._ad = self._ad + self.k_dist * err
         self.count += d
         self.innovation_counts = delta
+        self._d = d
         self.stuck_ticks = self.stuck_ticks + 1 if raw == self._raw_prev else 0
         self._raw_prev = raw
         k = self.dps_per_count_tick
@@ -321,11 +333,20 @@ class ScalarFixedLaw(_Common):
     def reset(self, raw_counts: int) -> None:
         self.count = int(raw_counts)
         self._raw_prev = int(raw_counts)
+        self._d = 0
         self._ep = self._v = self._ad = self._vel = 0
         self.vel_raw_dps = 0.0
         self.innovation_counts = 0
         self.stuck_ticks = 0
         self.reset_control()
+
+    def resync(self) -> None:
+        """See :meth:`ScalarLaw.resync`."""
+        self._ep = self._ad = 0
+        self._v = _qsat(self._d << fx.SIG_FRAC_BITS)
+        self._vel = _qmul(self._v, self._k_vel)
+        self.innovation_counts = 0
+        self.stuck_ticks = 0
 
     def reset_control(self) -> None:
         self._i_v = self._i_i = self._vr = self._iref = self._imeas = 0
@@ -350,6 +371,7 @@ class ScalarFixedLaw(_Common):
         self._ad = _qsat(self._ad + _qmul(err, self._kdist))
         self.count += d
         self.innovation_counts = delta
+        self._d = d
         self.stuck_ticks = self.stuck_ticks + 1 if raw == self._raw_prev else 0
         self._raw_prev = raw
         self.vel_raw_dps = d * self.dps_per_count_tick
@@ -503,8 +525,11 @@ class ArrayLaw(_Common):
 
     def reset(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.broadcast_to(np.asarray(raw_counts, dtype=np.int64), (self.n,)).copy()
-        self.count = raw.copy()
+        # The members share one setpoint: start each multi-turn count at its reading
+        # unwrapped around member 0's (a reading of 16383 next to 0 is -1, not +1 rev).
+        self.count = raw[0] + (raw - raw[0] + _HALF_REV) % _REV - _HALF_REV
         self.pos_deg = self.count * AXIS_DEG_PER_COUNT
+        self._d = np.zeros(self.n, dtype=np.int64)
         self._raw_prev = raw
         zero = np.zeros(self.n, dtype=np.int64 if self.fixed else float)
         self._ep = zero.copy()
@@ -515,6 +540,18 @@ class ArrayLaw(_Common):
         self.innovation_counts = np.zeros(self.n, dtype=np.int64)
         self.stuck_ticks = np.zeros(self.n, dtype=np.int64)
         self.reset_control()
+
+    def resync(self) -> None:
+        """See :meth:`ScalarLaw.resync` (every member)."""
+        self._ep = np.zeros_like(self._ep)
+        self._ad = np.zeros_like(self._ad)
+        if self.fixed:
+            self._v = fx.sat32(self._d << fx.SIG_FRAC_BITS)
+        else:
+            self._v = self._d.astype(float)
+        self._vel = self._mul(self._v, self._k_vel)
+        self.innovation_counts = np.zeros(self.n, dtype=np.int64)
+        self.stuck_ticks = np.zeros(self.n, dtype=np.int64)
 
     def reset_control(self, mask: npt.NDArray[np.bool_] | None = None) -> None:
         """Zero integrators, references and PWM pipeline (of the members in ``mask``)."""
@@ -562,6 +599,7 @@ class ArrayLaw(_Common):
         self.count = self.count + d
         self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self.innovation_counts = delta
+        self._d = d
         self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
         self._raw_prev = raw
         self.vel_raw_dps = d * self.dps_per_count_tick
@@ -656,6 +694,7 @@ class ArrayLaw(_Common):
         self.count = self.count + d
         self.pos_deg = self.count * AXIS_DEG_PER_COUNT
         self.innovation_counts = delta
+        self._d = d
         self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
         self._raw_prev = raw
         self.vel_raw_dps = d * self.dps_per_count_tick

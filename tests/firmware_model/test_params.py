@@ -74,7 +74,7 @@ def test_default_gains_follow_the_documented_derivation():
     g = fp.default_gains()
     n = fp.NOMINAL
     ts = 1.0 / n["tick_hz"]
-    bw = 0.5 / ts
+    bw = fp.CURRENT_BW_TS / ts
     assert g["current.kp_v_per_a"] == pytest.approx(bw * n["inductance_h"])
     assert g["current.ki_v_per_as"] == pytest.approx(bw * n["resistance_ohm"])
     # Velocity PI: symmetric optimum, Ti = 4 T_sigma; position P = crossover / 4.

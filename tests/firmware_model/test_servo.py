@@ -209,3 +209,31 @@ def test_scalar_and_batch_fixed_point_laws_agree_bit_for_bit():
         assert scalar.vel_dps == batch.vel_dps[0]
         assert scalar.current_ref_a == batch.current_ref_a[0]
         assert scalar.current_meas_a == batch.current_meas_a[0]
+
+
+def test_batch_boot_readings_unwrap_around_member_0():
+    law = ArrayLaw(FirmwareParams(), 4)
+    law.reset(np.array([3, 16383, 8, 16380]))
+    np.testing.assert_array_equal(law.count, [3, -1, 8, -4])
+
+
+@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
+def test_resync_restarts_the_observer_on_the_reading(law_class):
+    law = law_class(FirmwareParams())
+    law.reset(0)
+    x = 0.0
+    for k in range(200):  # cruise at 120 counts per tick, then a glitch of 3000 counts
+        x += 120.0
+        law.estimate(_counts(x + (3000 if k == 150 else 0)))
+    assert abs(law.innovation_counts) < 5
+    law.estimate(_counts(x + 3000))  # the encoder jumps for good (re-seated magnet)
+    assert abs(law.innovation_counts) > 2000
+    x += 120.0
+    law.estimate(_counts(x + 3000))
+    law.resync()
+    assert law.innovation_counts == 0
+    assert law.vel_dps == pytest.approx(120 * AXIS_DEG_PER_COUNT * 500, rel=0.02)
+    for _ in range(5):
+        x += 120.0
+        law.estimate(_counts(x + 3000))
+        assert abs(law.innovation_counts) <= 2
