@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -347,14 +348,35 @@ def _crossings(freq: np.ndarray, g: np.ndarray) -> list[tuple[float, float]]:
     return [(float(freq[k]), float(freq[k + 1])) for k in idx]
 
 
+def _fast_response(lt: LoopTransfer, freq: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """``L`` on frequency arrays: the transfer-function polynomials when they agree with the
+    state-space solve (checked on 8 grid points to 1e-4: a phase error below 0.01 deg),
+    else the state-space solve (a 500-point grid costs ~70 ms for the 20-state loops; the
+    optimiser asks for margins thousands of times)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        num, den = lt.tf()
+
+    def poly(f: np.ndarray) -> np.ndarray:
+        z = np.exp(2j * math.pi * f * lt.dt_s)
+        return np.polyval(num, z) / np.polyval(den, z)
+
+    probe = freq[:: max(1, len(freq) // 8)]
+    exact = lt.response(probe)
+    if np.all(np.isfinite(num)) and np.allclose(poly(probe), exact, rtol=1e-4, atol=0.0):
+        return poly
+    return lt.response
+
+
 def margins(lt: LoopTransfer) -> Margins:
     """Margins, crossovers and bandwidth of a broken loop (dense grid, then ``brentq``)."""
     freq = _grid(lt)
-    resp = lt.response(freq)
+    at_vec = _fast_response(lt, freq)
+    resp = at_vec(freq)
     mag = np.abs(resp)
 
     def at(f: float) -> complex:
-        return complex(lt.response(f))
+        return complex(at_vec(np.array([f]))[0])
 
     pm, fc = math.inf, math.nan
     for f0, f1 in _crossings(freq, mag - 1.0):

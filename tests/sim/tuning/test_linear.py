@@ -90,7 +90,8 @@ def test_current_loop_matches_the_hand_derived_polynomial(bench):
 def test_check_gains_refuses_unstable_with_the_source_and_reason(bench):
     gains = GainSet.from_bench(bench)
     linear.check_gains(bench, gains, "paper_bench.toml")  # the defaults pass
-    bad = gains.replace(kp_i_v_per_a=gains.kp_i_v_per_a * 12)
+    # Kp = 3 R: the proportional path alone returns three times the error a period later.
+    bad = gains.replace(kp_i_v_per_a=3.0 * linear.LinearPlant.from_bench(bench).r_ohm)
     with pytest.raises(ConfigError, match=r"the wire: gains refused \(current loop unstable"):
         linear.check_gains(bench, bad, "the wire")
 
