@@ -31,12 +31,16 @@ class Encoder:
         self._latency_s = params.latency_s
         self._noise = params.noise_rms_lsb
         self._offset = params.offset_counts
+        self._block: list[float] = []
 
     def read(self, x: list[float]) -> int:
         """Counts in ``[0, counts_per_rev)`` for a single state list (fast path)."""
         c = (x[POS] - x[VEL] * self._latency_s) * self._counts_per_rad + self._offset
         if self._noise:
-            c += self._noise * self.rng.standard_normal()
+            if not self._block:
+                # Drawn in blocks (a numpy call per read would cost more than the read).
+                self._block = (self._noise * self.rng.standard_normal(4096)).tolist()[::-1]
+            c += self._block.pop()
         return math.floor(c) % self.counts_per_rev
 
     def read_batch(self, x: np.ndarray) -> np.ndarray:

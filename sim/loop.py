@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -113,15 +113,48 @@ class RunLog:
         return [(f, getattr(self, f)) for f in LOG_FIELDS]
 
 
-@dataclass(frozen=True)
 class RunResult:
-    """What ``run`` returns: the log, what the PC decoded, and the link counters."""
+    """What ``run`` returns: the log, the bytes the PC received, what it decodes from them
+    (decoded on first use, in one pass) and the link counters.
 
-    log: RunLog
-    messages: tuple[Any, ...]
-    link: dict[str, int]
-    experiment: Experiment | None = None
-    firmware_counters: dict[str, int] = field(default_factory=dict)
+    Attributes:
+        log: the ``RunLog``.
+        pc_bytes: every byte that reached the PC, in order.
+        experiment: the experiment that was run.
+        firmware_counters: the firmware's ``counters`` at the end.
+    """
+
+    def __init__(
+        self,
+        log: RunLog,
+        pc_bytes: bytes,
+        uart_link: dict[str, int],
+        experiment: Experiment | None = None,
+        firmware_counters: dict[str, int] | None = None,
+    ) -> None:
+        self.log = log
+        self.pc_bytes = pc_bytes
+        self.experiment = experiment
+        self.firmware_counters = dict(firmware_counters or {})
+        self._uart_link = dict(uart_link)
+        self._messages: tuple[Any, ...] | None = None
+        self._decoder_stats: dict[str, int] = {}
+
+    @property
+    def messages(self) -> tuple[Any, ...]:
+        """Every message the PC decoded (``Telemetry``, replies, ``Malformed``), in order."""
+        if self._messages is None:
+            decoder = frame.Decoder()
+            self._messages = tuple(decoder.feed(self.pc_bytes))
+            stats = dataclasses.asdict(decoder.stats())
+            self._decoder_stats = {"pc_decoder_" + k: v for k, v in stats.items()}
+        return self._messages
+
+    @property
+    def link(self) -> dict[str, int]:
+        """UART counters of both directions and the PC decoder's counters."""
+        self.messages  # noqa: B018 - decodes on first use
+        return {**self._uart_link, **self._decoder_stats}
 
     @property
     def telemetry(self) -> tuple[Telemetry, ...]:
@@ -257,7 +290,11 @@ class Simulation:
         self._record_inputs = record_inputs
         self._inputs: list[tuple[Any, Any]] = []
         if batch is None:
-            self._rows: dict[str, list[Any]] = {f: [] for f in LOG_FIELDS}
+            # Per tick: the plant state at the sample, the firmware's signals, the bridge
+            # voltage; turned into columns by log().
+            self._xs: list[list[float]] = []
+            self._sigs: list[dict[str, Any]] = []
+            self._volts: list[float] = []
         else:
             self._cap = 0
             self._arrays: dict[str, np.ndarray] = {}
@@ -304,10 +341,21 @@ class Simulation:
     def log(self) -> RunLog:
         """The log so far as numpy arrays (copies)."""
         if self.batch is None:
-            cols = {}
-            for f, values in self._rows.items():
-                dtype = np.int64 if f in _INT_FIELDS else float
-                cols[f] = np.array(values, dtype=dtype)
+            n = len(self._xs)
+            x = np.array(self._xs, dtype=float).reshape(n, 5)
+            cols = {
+                f: np.array(
+                    [s[f] for s in self._sigs], dtype=np.int64 if f in _INT_FIELDS else float
+                )
+                for f in FW_FIELDS
+            }
+            cols["t_s"] = np.arange(n) * self.dt_s
+            cols["true_pos_deg"] = x[:, 1] * self._deg_per_rad_axis
+            cols["true_vel_dps"] = x[:, VEL] * self._deg_per_rad_axis
+            cols["platter_pos_deg"] = np.degrees(x[:, 1] / self._n_total - x[:, TWIST])
+            cols["motor_pos_rad"] = x[:, 1].copy()
+            cols["current_a"] = x[:, I_A].copy()
+            cols["voltage_v"] = np.array(self._volts, dtype=float)
             return RunLog(**cols)
         n = self.tick
         cols = {f: self._arrays[f][:, :n].copy() for f in LOG_FIELDS if f != "t_s"}
@@ -336,16 +384,8 @@ class Simulation:
         fw = self.fw
         plant = self.plant
         x = self._x
-        rows = self._rows
+        self._xs.append(x)  # the plant state at the sampling instant (lists are not mutated)
         t = self.tick * self.dt_s
-        # Plant signals at the sampling instant, where the firmware sees them.
-        pos = x[1]
-        rows["t_s"].append(t)
-        rows["true_pos_deg"].append(pos * self._deg_per_rad_axis)
-        rows["true_vel_dps"].append(x[VEL] * self._deg_per_rad_axis)
-        rows["platter_pos_deg"].append(math.degrees(pos / self._n_total - x[TWIST]))
-        rows["motor_pos_rad"].append(pos)
-        rows["current_a"].append(x[I_A])
         counts = self.encoder.read(x)
         tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
         if tx:
@@ -373,10 +413,8 @@ class Simulation:
             t += self.h_s
         self._x = x
         self.tick += 1
-        sig = fw.signals()
-        for f in FW_FIELDS:
-            rows[f].append(sig[f])
-        rows["voltage_v"].append(self._duty * self._vs if self._enable else 0.0)
+        self._sigs.append(fw.signals())
+        self._volts.append(self._duty * self._vs if self._enable else 0.0)
         self._move_bytes()
 
     def _grow(self) -> None:
@@ -455,8 +493,6 @@ def run(
     n_ticks = int(round(exp.duration_s / sim.dt_s))
     # Each command goes out at the first tick boundary at or after its time.
     schedule = [(math.ceil(c.t_s / sim.dt_s - 1e-9), c) for c in exp.commands]
-    decoder = frame.Decoder()
-    messages: list[Any] = []
     seq = 0
     cmd_id = 0
     nxt = 0
@@ -473,18 +509,12 @@ def run(
                 seq = (seq + 1) & 0xFF
             nxt += 1
         sim.step()
-        data = sim.pc_read()
-        if data:
-            messages.extend(decoder.feed(data))
         if progress is not None and (tick + 1) % every == 0:
             progress(tick + 1, n_ticks)
     if progress is not None and n_ticks % every:
         progress(n_ticks, n_ticks)
-    link = sim.link_stats()
-    for name, value in dataclasses.asdict(decoder.stats()).items():
-        link["pc_decoder_" + name] = value
     counters = dict(getattr(sim.fw, "counters", {}))
-    return RunResult(sim.log(), tuple(messages), link, exp, counters)
+    return RunResult(sim.log(), sim.pc_read(), sim.link_stats(), exp, counters)
 
 
 def uart_faults(uart: UartParams) -> FaultInjection | None:

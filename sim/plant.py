@@ -160,33 +160,87 @@ def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return a, b, e
 
 
+def _taylor_expm(a: np.ndarray) -> np.ndarray:
+    """exp(a) for a small-norm matrix (<= 1/2): Taylor terms until they vanish."""
+    eye = np.eye(a.shape[0])
+    out = eye + a
+    term = a
+    for k in range(2, 40):
+        term = np.einsum("ij,jk->ik", term, a) / k
+        out = out + term
+        if float(np.max(np.abs(term))) <= 1e-18 * float(np.max(np.abs(out))):
+            break
+    return out
+
+
 def expm_small(m: np.ndarray) -> np.ndarray:
-    """Matrix exponential of a small square matrix: scaling and squaring around a degree-18
-    Taylor polynomial (truncation < 1e-22 at norm 1/2), with ``einsum`` products.
+    """Matrix exponential of a small square matrix: scaling and squaring around a Taylor
+    series (truncated below 1e-18 relative), with ``einsum`` products.
 
     ``scipy.linalg.expm`` gives the same result, but its BLAS calls go multi-threaded even
     for 7 x 7 matrices and take milliseconds on a busy machine; the tests compare the two.
     """
     norm = float(np.max(np.sum(np.abs(m), axis=0)))
     squarings = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
-    a = m / (1 << squarings)
-    eye = np.eye(m.shape[0])
-    out = eye + a / 18.0
-    for k in range(17, 0, -1):
-        out = eye + np.einsum("ij,jk->ik", a, out) / k
+    out = _taylor_expm(m / (1 << squarings))
     for _ in range(squarings):
         out = np.einsum("ij,jk->ik", out, out)
     return out
 
 
-def zoh(key: int, co: Coefficients, h_s: float) -> np.ndarray:
-    """Exact zero-order-hold step of mode ``key`` over ``h_s``: ``Phi`` of shape (5, 7)."""
+def augmented(key: int, co: Coefficients) -> np.ndarray:
+    """The 7 x 7 matrix ``[[A, B, e], [0, 0, 0], [0, 0, 0]]`` of mode ``key``."""
     a, b, e = affine(key, co)
     m = np.zeros((N_X + 2, N_X + 2))
     m[:N_X, :N_X] = a
     m[:N_X, N_X] = b
     m[:N_X, N_X + 1] = e
-    return expm_small(m * h_s)[:N_X, :]
+    return m
+
+
+def zoh(key: int, co: Coefficients, h_s: float) -> np.ndarray:
+    """Exact zero-order-hold step of mode ``key`` over ``h_s``: ``Phi`` of shape (5, 7)."""
+    return expm_small(augmented(key, co) * h_s)[:N_X, :]
+
+
+def zoh_ladder(key: int, co: Coefficients, h_s: float, levels: int) -> list[np.ndarray]:
+    """``Phi`` of mode ``key`` over ``h_s / 2**l`` for l = 0..levels, each (5, 7).
+
+    One exponential at the finest step, then squaring up (``exp(2 M h) = exp(M h)**2``):
+    the scaling and squaring of ``expm_small`` with every intermediate kept.
+    """
+    m = augmented(key, co)
+    fine = h_s / (1 << levels)
+    norm = float(np.max(np.sum(np.abs(m), axis=0))) * fine
+    extra = max(0, math.ceil(math.log2(norm / 0.5))) if norm > 0.5 else 0
+    full = _taylor_expm(m * (fine / (1 << extra)))
+    for _ in range(extra):
+        full = np.einsum("ij,jk->ik", full, full)
+    out = [full]
+    for _ in range(levels):
+        full = np.einsum("ij,jk->ik", full, full)
+        out.append(full)
+    return [p[:N_X, :] for p in reversed(out)]
+
+
+# Matrices shared by every plant with the same coefficients and step (tests and benchmarks
+# build many plants): (coefficients, h_s, levels, key) -> rows per level.
+_LADDERS: dict[tuple[Coefficients, float, int, int], list[tuple[tuple[float, ...], ...]]] = {}
+
+
+def ladder_rows(
+    key: int, co: Coefficients, h_s: float, levels: int
+) -> list[tuple[tuple[float, ...], ...]]:
+    """``zoh_ladder`` as nested float tuples, memoised across plants."""
+    slot = (co, h_s, levels, key)
+    rows = _LADDERS.get(slot)
+    if rows is None:
+        rows = [
+            tuple(tuple(float(v) for v in row) for row in mat)
+            for mat in zoh_ladder(key, co, h_s, levels)
+        ]
+        _LADDERS[slot] = rows
+    return rows
 
 
 def mode_keys(x: np.ndarray, duty: Any, enable: Any, co: Coefficients) -> np.ndarray:
@@ -296,6 +350,45 @@ def _derivative_one(x: np.ndarray, duty: float, enable: bool, params: PlantParam
     return np.array([di, w, (m.kt_nm_a * i - fm - g * tb) / m.j_kgm2, rate, (tb - fp) / pl.j_kgm2])
 
 
+def _region(v: float, edge: float) -> int:
+    return 2 if v > edge else (0 if v < -edge else 1)
+
+
+def _hermite_leaves(p0: float, p1: float, m0: float, m1: float, edge: float) -> bool:
+    """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has an
+    interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
+    than its ends (which share one)."""
+    region = _region(p0, edge)
+    # Ends far from both edges compared with the change over the step: no excursion.
+    reach = abs(m0) + abs(m1) + abs(p1 - p0)
+    if min(abs(p0 - edge), abs(p0 + edge)) > reach and min(abs(p1 - edge), abs(p1 + edge)) > reach:
+        return False
+    a = 6.0 * (p0 - p1) + 3.0 * (m0 + m1)
+    b = -6.0 * (p0 - p1) - 4.0 * m0 - 2.0 * m1
+    c = m0
+    roots: tuple[float, ...]
+    if abs(a) < 1e-300:
+        roots = (-c / b,) if b else ()
+    else:
+        disc = b * b - 4.0 * a * c
+        if disc < 0:
+            return False
+        q = math.sqrt(disc)
+        roots = ((-b - q) / (2.0 * a), (-b + q) / (2.0 * a))
+    for s in roots:
+        if 0.0 < s < 1.0:
+            s2, s3 = s * s, s * s * s
+            v = (
+                (2 * s3 - 3 * s2 + 1) * p0
+                + (s3 - 2 * s2 + s) * m0
+                + (-2 * s3 + 3 * s2) * p1
+                + (s3 - s2) * m1
+            )
+            if _region(v, edge) != region:
+                return True
+    return False
+
+
 class ScalarPlant:
     """The N = 1 plant on plain Python floats (the fast path of the loop).
 
@@ -319,6 +412,7 @@ class ScalarPlant:
         # would take 2**levels steps. Past the budget a step is accepted in its start mode
         # (the dynamics on both sides of such a boundary agree there).
         self.split_budget = 4 * self.event_levels + 8
+        self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
         self._splits = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
@@ -326,9 +420,10 @@ class ScalarPlant:
         slot = key * 64 + level
         rows = self._phi.get(slot)
         if rows is None:
-            mat = zoh(key, self.co, self.h_s / (1 << level))
-            rows = tuple(tuple(float(v) for v in row) for row in mat)
-            self._phi[slot] = rows
+            ladder = ladder_rows(key, self.co, self.h_s, self.event_levels)
+            for lev, r in enumerate(ladder):
+                self._phi[key * 64 + lev] = r
+            rows = ladder[level]
         return rows
 
     def key(self, x: list[float], duty: float, enable: bool) -> int:
@@ -364,6 +459,36 @@ class ScalarPlant:
             bridge = B_DIODE_NEG if emf > co.vd2 else (B_DIODE_POS if emf < -co.vd2 else B_OPEN)
         return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
 
+    def _rates(self, key: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Rows of ``[A | B | e]`` for the motor and platter accelerations in mode ``key``."""
+        rows = self._rate_rows.get(key)
+        if rows is None:
+            a, b, e = affine(key, self.co)
+            rows = tuple(tuple(float(v) for v in (*a[r], b[r], e[r])) for r in (VEL, PVEL))
+            self._rate_rows[key] = rows
+        return rows
+
+    def _excursion(self, x: list[float], xn: list[float], key: int, h: float) -> bool:
+        """Whether a boundary was crossed and re-crossed inside a step whose start and end
+        share a mode (a velocity dipping into a friction band and out, a short trip
+        through the backlash gap). Each boundary variable (motor speed, platter speed,
+        twist) is interpolated by the cubic Hermite through its values and rates at both
+        ends; an interior extremum on the other side of a boundary calls for halving."""
+        co = self.co
+        rv, rp = self._rates(key)
+        i0, _, w0, t0, p0 = x
+        i1, _, w1, t1, p1 = xn
+        wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
+        wd1 = rv[0] * i1 + rv[2] * w1 + rv[3] * t1 + rv[4] * p1 + rv[6]
+        pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
+        pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
+        inv_n = 1.0 / co.n
+        return (
+            _hermite_leaves(w0, w1, wd0 * h, wd1 * h, co.wbm)
+            or _hermite_leaves(p0, p1, pd0 * h, pd1 * h, co.wbp)
+            or _hermite_leaves(t0, t1, (w0 * inv_n - p0) * h, (w1 * inv_n - p1) * h, co.half)
+        )
+
     def update(self, t_s: float, x: list[float], u: tuple[float, bool]) -> list[float]:
         """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state."""
         duty, enable = u
@@ -381,7 +506,11 @@ class ScalarPlant:
             r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6],
         ]
         key_end = self.key(xn, d, en)
-        if key_end == key:
+        if key_end == key and (
+            level >= self.event_levels
+            or self._splits <= 0
+            or not self._excursion(x, xn, key, self.h_s / (1 << level))
+        ):
             return xn
         if level >= self.event_levels or self._splits <= 0:
             # Located to h / 2**levels: accept. A freewheeling current that crossed zero stops
@@ -463,10 +592,11 @@ class BatchPlant:
                     xn[:] = np.einsum("nj,nji->ni", xa, phi_t)
                 else:
                     xn[sel] = np.einsum("nj,nji->ni", xa[sel], phi_t[sel])
+            # einsum, not matmul: BLAS goes multi-threaded on these small products.
             elif sel is None:
-                np.matmul(xa, phi_t, out=xn)
+                np.einsum("nj,ji->ni", xa, phi_t, out=xn)
             else:
-                xn[sel] = xa[sel] @ phi_t
+                xn[sel] = np.einsum("nj,ji->ni", xa[sel], phi_t)
         moved = np.nonzero(mode_keys(xn, duty, enable, self.co) != keys)[0]
         for j in moved:
             xn[j] = self.members[j].update(t_s, x[j].tolist(), (float(duty[j]), bool(enable[j])))

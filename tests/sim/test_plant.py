@@ -22,9 +22,11 @@ from sim.plant import (
     Coefficients,
     ScalarPlant,
     affine,
+    augmented,
     derivative,
     expm_small,
     mode_keys,
+    zoh_ladder,
 )
 
 DT_S = 0.002
@@ -77,6 +79,16 @@ def test_expm_small_matches_scipy_for_every_kind_of_mode():
         for h, rtol in ((2e-3, 1e-10), (2e-3 / 2**10, 1e-10), (2e-3 / 2**20, 1e-10), (0.1, 1e-8)):
             ref = scipy.linalg.expm(m * h)
             np.testing.assert_allclose(expm_small(m * h), ref, rtol=rtol, atol=1e-12)
+
+
+def test_zoh_ladder_matches_scipy_at_every_level():
+    co = Coefficients.from_params(PlantParams())
+    for key in range(1, N_MODES, 11):
+        ladder = zoh_ladder(key, co, 2e-3, 20)
+        for level in (0, 1, 7, 20):
+            m = augmented(key, co) * (2e-3 / 2**level)
+            ref = scipy.linalg.expm(m)[:5, :]
+            np.testing.assert_allclose(ladder[level], ref, rtol=1e-10, atol=1e-12)
 
 
 def test_steady_speed_matches_analytic():
@@ -211,3 +223,14 @@ def test_derivative_is_batched_and_pure():
 def test_diode_mode_key_when_current_positive():
     plant = ScalarPlant(PlantParams(), DT_S)
     assert plant.key([1.0, 0.0, 0.0, 0.0, 0.0], 0.0, False) // 54 == B_DIODE_POS
+
+
+def test_hidden_excursion_into_a_band_is_detected():
+    from sim.plant import _hermite_leaves
+
+    # Ends at -0.3 (outside the +-0.1 band), slopes towards it and back: the cubic peaks at
+    # -0.3 + (m0 - m1) / 8 at mid-step.
+    assert _hermite_leaves(-0.3, -0.3, 1.2, -1.2, 0.1)  # peaks at 0.0: inside the band
+    assert not _hermite_leaves(-0.3, -0.3, 0.4, -0.4, 0.1)  # peaks at -0.2: stays out
+    assert not _hermite_leaves(-30.0, -29.0, 1.0, 1.0, 0.1)  # far away: gate
+    assert _hermite_leaves(0.5, 0.5, -4.0, 4.0, 0.1)  # dips through the band to the other side

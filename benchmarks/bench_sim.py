@@ -1,0 +1,176 @@
+"""Speed of the simulation loop (not a test; the numbers go to docs/benchmarks.md, "Simulation").
+
+Three measurements, all with the full firmware model (``firmware_model.firmware.Firmware``)
+on ``bench_configs/paper_bench.toml``, driven by the paper's Fig. 8 script (3000 deg, then
+interrupts to -8000, -6000 and -1000 deg at 2, 10 and 16 s; v_max 990 deg/s, a_max 148
+deg/s^2), encoder noise on, telemetry every tick:
+
+1. real-time factor of one 20 s run (``sim.loop.run``), N = 1;
+2. batch throughput at N = 256 (controller ticks per second = N x ticks / wall time);
+3. the same closed loop with the plant advanced by one ``solve_ivp`` call per tick (what a
+   user would write by hand), at equal accuracy (rtol 1e-10; the motor angles of the two
+   runs are compared and printed), against the exact-ZOH loop, in the same run.
+
+Repeats give a median and a minimum (the machine is shared: the minimum is the closest to an
+idle machine). Usage::
+
+    python3 benchmarks/bench_sim.py [--repeat 3] [--batch 256] [--batch-s 2] [--ivp-s 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from sim.config import Experiment, ScriptedCommand, load_bench
+from sim.loop import Simulation, run
+from sim.plant import derivative
+
+BENCH = Path(__file__).resolve().parents[1] / "bench_configs" / "paper_bench.toml"
+
+
+def fig8_experiment(duration_s: float) -> Experiment:
+    bench = load_bench(BENCH)
+    moves = [(0.0, 3e6), (2.0, -8e6), (10.0, -6e6), (16.0, -1e6)]
+    cmds = tuple(
+        ScriptedCommand(
+            t,
+            "move",
+            (("target_mdeg", target), ("v_max_dps", 990.0), ("a_max_dps2", 148.0)),
+        )
+        for t, target in moves
+        if t < duration_s
+    )
+    return Experiment(bench=bench, duration_s=duration_s, commands=cmds)
+
+
+class SolveIvpPlant:
+    """A plant that calls ``solve_ivp`` once per step, with the ScalarPlant's interface."""
+
+    def __init__(self, params, h_s: float, rtol: float = 1e-10, atol: float = 1e-12) -> None:
+        self.params = params
+        self.h_s = h_s
+        self.rtol, self.atol = rtol, atol
+
+    def update(self, t_s, x, u):
+        sol = solve_ivp(
+            lambda t, y: derivative(t, y, u, self.params),
+            (t_s, t_s + self.h_s),
+            np.asarray(x, dtype=float),
+            method="DOP853",
+            rtol=self.rtol,
+            atol=self.atol,
+        )
+        return [float(v) for v in sol.y[:, -1]]
+
+
+def time_run(exp: Experiment, batch: int | None, repeat: int) -> list[float]:
+    walls = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        res = run(exp, batch=batch)
+        walls.append(time.perf_counter() - t0)
+        # What the PC decodes is part of the experiment: decode it (lazy in RunResult).
+        t1 = time.perf_counter()
+        n_tel = len(res.telemetry)
+        walls[-1] += time.perf_counter() - t1
+    assert n_tel > 0
+    return walls
+
+
+def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
+    """Same closed loop, ZOH plant vs solve_ivp plant, same seed: wall per tick and the
+    largest motor-angle difference."""
+    n = round(seconds / exp.bench.dt_s)
+    out = {}
+    logs = {}
+    for name in ("zoh", "ivp"):
+        sim = Simulation(exp.bench, seed=0)
+        if name == "ivp":
+            sim.plant = SolveIvpPlant(exp.bench.plant, sim.h_s)
+        from serial_protocol import frame
+
+        sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+        t0 = time.perf_counter()
+        sim.step(n)
+        out[f"{name}_us_per_tick"] = (time.perf_counter() - t0) / n * 1e6
+        logs[name] = sim.log()
+    diff = np.max(np.abs(logs["zoh"].motor_pos_rad - logs["ivp"].motor_pos_rad))
+    out["max_diff_rev"] = diff / (2 * math.pi)
+    out["ratio"] = out["ivp_us_per_tick"] / out["zoh_us_per_tick"]
+    return out
+
+
+def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
+    """Plant alone: replay a recorded duty sequence through ScalarPlant and solve_ivp."""
+    n = round(seconds / exp.bench.dt_s)
+    sim = Simulation(exp.bench, record_inputs=True)
+    from serial_protocol import frame
+
+    sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+    sim.step(n)
+    duty, enable = sim.inputs()
+    from sim.plant import ScalarPlant
+
+    zoh = ScalarPlant(exp.bench.plant, sim.h_s)
+    ivp = SolveIvpPlant(exp.bench.plant, sim.h_s)
+    res = {}
+    for name, plant in (("zoh", zoh), ("ivp", ivp)):
+        x = [0.0] * 5
+        t0 = time.perf_counter()
+        for k in range(n):
+            x = plant.update(k * sim.h_s, x, (float(duty[k]), bool(enable[k])))
+        res[f"plant_{name}_us_per_step"] = (time.perf_counter() - t0) / n * 1e6
+    res["plant_ratio"] = res["plant_ivp_us_per_step"] / res["plant_zoh_us_per_step"]
+    return res
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--batch", type=int, default=256)
+    ap.add_argument("--batch-s", type=float, default=2.0, help="simulated s of the batch run")
+    ap.add_argument("--ivp-s", type=float, default=1.0, help="simulated s of the ivp loop")
+    args = ap.parse_args()
+
+    exp20 = fig8_experiment(20.0)
+    walls = time_run(exp20, None, args.repeat)
+    med, best = statistics.median(walls), min(walls)
+    print(f"[1] 20 s run, N = 1, full firmware: wall median {med:.3f} s (min {best:.3f} s)")
+    print(f"    real-time factor median {20 / med:.0f}x (best {20 / best:.0f}x), target 200x;")
+    print(f"    {med / 10_000 * 1e6:.1f} us per tick median ({best / 10_000 * 1e6:.1f} best)")
+
+    expb = fig8_experiment(args.batch_s)
+    walls = time_run(expb, args.batch, args.repeat)
+    ticks = args.batch * round(args.batch_s / expb.bench.dt_s)
+    med, best = statistics.median(walls), min(walls)
+    print(
+        f"[2] batch N = {args.batch}, {args.batch_s:g} s: wall median {med:.3f} s (min {best:.3f})"
+    )
+    print(
+        f"    {ticks / med:,.0f} controller ticks/s median ({ticks / best:,.0f} best), "
+        "target 2,000,000"
+    )
+
+    r = loop_ivp_vs_zoh(exp20, args.ivp_s)
+    print(f"[3] closed loop, {args.ivp_s:g} s, same seed: ZOH {r['zoh_us_per_tick']:.1f} us/tick,")
+    print(f"    solve_ivp per tick (DOP853, rtol 1e-10) {r['ivp_us_per_tick']:.1f} us/tick")
+    print(
+        f"    ratio {r['ratio']:.0f}x (target 50x); max motor-angle difference "
+        f"{r['max_diff_rev']:.2e} rev"
+    )
+    p = plant_only(exp20, args.ivp_s)
+    print(
+        f"    plant alone (replayed duty): ZOH {p['plant_zoh_us_per_step']:.2f} us/step, "
+        f"solve_ivp {p['plant_ivp_us_per_step']:.0f} us/step, ratio {p['plant_ratio']:.0f}x"
+    )
+
+
+if __name__ == "__main__":
+    main()
