@@ -7,6 +7,7 @@ Everything plotted is what the PC decoded from the telemetry frames (``Trace``).
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -80,7 +81,8 @@ def paper_figure(
     ax_e.set_ylabel("measured - planned\nvelocity (deg/s)")
     ax_p.set_ylabel("axis position\n(10^3 deg = paper's 10^6)")
     ax_i.set_ylabel("motor current (A)\n(IS pin, decoded)")
-    ax_i.set_xlabel(time_label + ("\n" + note if note else ""))
+    # Wrap the note to the figure width so a long one is not cut off at the edge.
+    ax_i.set_xlabel(time_label + ("\n" + textwrap.fill(note, 120) if note else ""))
     for sign in (1.0, -1.0):
         ax_i.axhline(sign * current_limit_a, color="tab:red", ls=":", lw=1.0)
     ax_i.set_ylim(-1.25 * current_limit_a, 1.25 * current_limit_a)
