@@ -91,8 +91,10 @@ class CostWeights:
 def _windows(exp: Experiment, t_s: np.ndarray) -> list[tuple[int, int]]:
     """Tick ranges ``[k0, k1)`` between consecutive commands (and the end)."""
     dt = float(t_s[1] - t_s[0]) if len(t_s) > 1 else 1.0
+    n = len(t_s)
     starts = sorted({int(np.ceil(c.t_s / dt - 1e-9)) for c in exp.commands} | {0})
-    ends = starts[1:] + [len(t_s)]
+    starts = [k for k in starts if k < n]  # commands after the end of the log
+    ends = starts[1:] + [n]
     return [(a, b) for a, b in zip(starts, ends, strict=True) if b > a]
 
 

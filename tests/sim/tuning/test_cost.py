@@ -88,3 +88,12 @@ def test_combine_and_weights():
         w.with_updates(["bogus=1"])
     with pytest.raises(ValueError, match="must be a number >= 0"):
         CostWeights(itae_deg_s2=-1.0)
+
+
+def test_commands_after_the_end_of_the_log_are_ignored(bench):
+    n = 50
+    sp = np.zeros((2, n))
+    log = _log(n, sp_pos_deg=sp, true_pos_deg=sp + 0.1)
+    terms = cost_terms(log, _exp(bench, 0.0, 0.2, 5.0), current_limit_a=5.0, delay_ticks=1)
+    ages = np.concatenate([np.arange(20), np.arange(30)]) * DT_S
+    assert terms["itae_deg_s2"] == pytest.approx([np.sum(ages * 0.1) * DT_S] * 2)
