@@ -82,6 +82,7 @@ class Coefficients:
     eta: Any
     icl: Any
     vd2: Any
+    inv_n: Any
 
     @classmethod
     def from_params(cls, p: PlantParams) -> Coefficients:
@@ -109,6 +110,7 @@ class Coefficients:
             eta=f(p.gearbox.efficiency),
             icl=f(p.bridge.current_limit_a),
             vd2=f(p.supply.voltage_v + 2.0 * p.bridge.diode_drop_v),
+            inv_n=f(1.0 / (p.gearbox.ratio * p.belt.ratio)),
         )
 
 
@@ -358,11 +360,13 @@ def _hermite_leaves(p0: float, p1: float, m0: float, m1: float, edge: float) -> 
     """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has an
     interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
     than its ends (which share one)."""
-    region = _region(p0, edge)
     # Ends far from both edges compared with the change over the step: no excursion.
     reach = abs(m0) + abs(m1) + abs(p1 - p0)
-    if min(abs(p0 - edge), abs(p0 + edge)) > reach and min(abs(p1 - edge), abs(p1 + edge)) > reach:
+    d0 = abs(p0) - edge
+    d1 = abs(p1) - edge
+    if (d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach):
         return False
+    region = _region(p0, edge)
     a = 6.0 * (p0 - p1) + 3.0 * (m0 + m1)
     b = -6.0 * (p0 - p1) - 4.0 * m0 - 2.0 * m1
     c = m0
@@ -413,6 +417,7 @@ class ScalarPlant:
         # (the dynamics on both sides of such a boundary agree there).
         self.split_budget = 4 * self.event_levels + 8
         self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
+        self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
         self._splits = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
@@ -475,14 +480,20 @@ class ScalarPlant:
         twist) is interpolated by the cubic Hermite through its values and rates at both
         ends; an interior extremum on the other side of a boundary calls for halving."""
         co = self.co
-        rv, rp = self._rates(key)
         i0, _, w0, t0, p0 = x
         i1, _, w1, t1, p1 = xn
-        wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
+        rv, rp = self._rates(key)
+        cache = self._rate_cache
+        if cache[0] is x and cache[1] == key:
+            wd0, pd0 = cache[2], cache[3]
+        else:
+            wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
+            pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
         wd1 = rv[0] * i1 + rv[2] * w1 + rv[3] * t1 + rv[4] * p1 + rv[6]
-        pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
         pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
-        inv_n = 1.0 / co.n
+        # The end's rates are the next step's start rates (same state object, same mode).
+        self._rate_cache = (xn, key, wd1, pd1)
+        inv_n = co.inv_n
         return (
             _hermite_leaves(w0, w1, wd0 * h, wd1 * h, co.wbm)
             or _hermite_leaves(p0, p1, pd0 * h, pd1 * h, co.wbp)
