@@ -221,6 +221,9 @@ class CurrentLoopGains(_Checked):
     is that voltage over ``supply_v``, clamped to ``duty_limit`` and quantised to
     ``pwm_arr`` timer steps. The sensed current is ``adc / 2^adc_bits * adc_vref_v /
     sense_resistor_ohm * sense_ratio`` (BTN7971 IS pin, high side only), signed by the duty.
+    A reading at or below ``sense_floor_counts`` while the reference opposes the duty (or
+    no duty is applied) is taken as "the high side carries nothing": the loop then uses its
+    reference as the current (see docs/model.md, "The current loop").
     """
 
     kp_v_per_a: Gain = _f(_DEFAULTS["current.kp_v_per_a"], _gain)
@@ -234,6 +237,7 @@ class CurrentLoopGains(_Checked):
     sense_resistor_ohm: float = _f(1000.0, _rng(1.0, 1e6))
     adc_vref_v: float = _f(3.3, _rng(0.5, 5.5))
     adc_bits: int = _f(12, _irng(8, 16))
+    sense_floor_counts: int = _f(2, _irng(0, 100))
 
     @property
     def a_per_adc(self) -> float:

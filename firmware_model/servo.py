@@ -92,6 +92,7 @@ class _Common:
         self.duty_limit = cur.duty_limit
         self.arr = cur.pwm_arr
         self.a_per_adc = cur.a_per_adc
+        self.sense_floor = cur.sense_floor_counts
         self.gains: dict[str, Any] = {
             name: getattr(getattr(params, table), key) for name, (table, key) in GAIN_NAMES.items()
         }
@@ -231,7 +232,7 @@ class ScalarLaw(_Common):
         # (delay + 1 periods ago); the feed-forward acts on the present reference.
         k = self._ref_i
         ref_d = self._ref_pipe[k]
-        if adc_counts == 0 and ref_d * applied <= 0.0:
+        if adc_counts <= self.sense_floor and ref_d * applied <= 0.0:
             # High-side sense blind (current against the duty, or no duty): trust the model.
             i_meas = ref_d
         if not enabled:
@@ -409,7 +410,7 @@ class ScalarFixedLaw(_Common):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
-        if adc == 0 and ((ref_d > 0) - (ref_d < 0)) * sign <= 0:
+        if adc <= self.sense_floor and ((ref_d > 0) - (ref_d < 0)) * sign <= 0:
             i_meas = ref_d
         e = _qsat(ref_d - i_meas)
         self._ref_pipe[k] = i_ref
@@ -644,7 +645,7 @@ class ArrayLaw(_Common):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
-        blind = (adc == 0) & (np.sign(ref_d) * sign <= 0)
+        blind = (adc <= self.sense_floor) & (np.sign(ref_d) * sign <= 0)
         i_meas = np.where(blind, ref_d, i_meas)
         e = self._sat(ref_d - i_meas)
         self._ref_pipe[k] = i_ref
@@ -728,7 +729,7 @@ class ArrayLaw(_Common):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
-        blind = (adc == 0) & (np.sign(ref_d) * sign <= 0)
+        blind = (adc <= self.sense_floor) & (np.sign(ref_d) * sign <= 0)
         i_meas = np.where(blind, ref_d, i_meas)
         e = ref_d - i_meas
         self._ref_pipe[k] = i_ref
