@@ -5,6 +5,7 @@ a tuned copy of the config, before/after and Bode plots, and a report (docs/tuni
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
@@ -36,6 +37,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--popsize", type=int, default=10, help="population per gain (scipy)")
     parser.add_argument("--maxiter", type=int, default=4, help="generations per stage")
     parser.add_argument(
+        "--bound-factor",
+        type=float,
+        default=4.0,
+        help="search each gain within [config / F, config * F] (default 4)",
+    )
+    parser.add_argument(
         "--weight", action="append", default=[], metavar="NAME=VALUE", help="cost weight"
     )
     parser.add_argument("--no-robust", action="store_true", help="skip the plant-spread check")
@@ -64,6 +71,7 @@ def main(args: argparse.Namespace) -> int:
             mode="joint" if args.joint else "staged",
             popsize=args.popsize,
             maxiter=args.maxiter,
+            bound_factor=args.bound_factor,
             weights=weights,
         )
         start = GainSet.from_bench(bench)
@@ -139,6 +147,18 @@ def main(args: argparse.Namespace) -> int:
         f"the linear gate)"
         for s in result.stages
     ]
+    edge = [
+        name
+        for name, value in result.gains.as_dict().items()
+        if value > 0
+        and getattr(start, name) > 0
+        and abs(math.log(value / getattr(start, name))) > 0.98 * math.log(args.bound_factor)
+    ]
+    if edge:
+        stage_lines.append(
+            f"- at the edge of the search box (x{args.bound_factor:g} of the config): "
+            f"{', '.join(edge)}; a larger --bound-factor may find more"
+        )
     wall_s = time.perf_counter() - wall0
     md = "\n".join(
         [
