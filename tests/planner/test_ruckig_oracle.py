@@ -85,3 +85,25 @@ def test_scurve_with_start_acceleration_matches_ruckig_when_limits_can_hold():
         worst = max(worst, abs(ours.duration - theirs) / theirs)
         compared += 1
     assert worst <= 1e-6
+
+
+def test_scurve_from_above_v_max_is_never_slower_than_ruckig():
+    """|v0| > v_max (a replan that lowered v_max): ruckig runs a brake pre-profile that is not
+    time-optimal, so durations differ; plan_scurve (which must also be back within v_max no
+    later than the fastest settled brake, tested in test_scurve.py) is never slower."""
+    rng = random.Random(13)
+    compared = 0
+    while compared < 150:
+        v_max = 10 ** rng.uniform(-1, 2)
+        a_max = 10 ** rng.uniform(-1, 2)
+        j_max = 10 ** rng.uniform(-1, 3)
+        d = rng.uniform(-1.0, 1.0) * 10 ** rng.uniform(-3, 3)
+        v0 = rng.choice([-1.0, 1.0]) * rng.uniform(1.001, 2.0) * v_max
+        a0 = rng.uniform(-1.0, 1.0) * a_max if rng.random() < 0.5 else 0.0
+        try:
+            theirs = ruckig_duration(0.0, d, v0, 0.0, v_max, a_max, j_max, a0=a0)
+        except ruckig.RuckigError:
+            continue
+        ours = plan_scurve(0.0, d, v_max=v_max, a_max=a_max, j_max=j_max, v0=v0, a0=a0)
+        assert ours.duration <= theirs * (1 + 1e-6)
+        compared += 1
