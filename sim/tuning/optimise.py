@@ -104,7 +104,8 @@ def _stage(
     centre = np.array([math.log10(max(getattr(start, n), 1e-12)) for n in names])
     half = math.log10(settings.bound_factor)
     bench = scenarios[0].bench
-    record = {"simulated": 0, "refused": 0, "best": [], "best_x": None, "best_cost": math.inf}
+    record: dict = {"simulated": 0, "refused": 0, "best": [], "best_x": None}
+    record.update(best_cost=math.inf, start_cost=math.nan)
 
     def candidate(x: np.ndarray) -> GainSet:
         return start.replace(**{n: float(10.0**v) for n, v in zip(names, x, strict=True)})
@@ -125,6 +126,9 @@ def _stage(
             ev = evaluate(scenarios, [sets[k] for k in ok], weights=settings.weights, seed=seed)
             cost[ok] = np.minimum(ev.cost, PENALTY)
             record["simulated"] += len(ok)
+        for k in range(xs.shape[1]):
+            if np.array_equal(xs[:, k], centre):
+                record["start_cost"] = float(cost[k])  # x0: the first member of generation 0
         k_best = int(np.argmin(cost))
         if cost[k_best] < record["best_cost"]:
             record["best_cost"] = float(cost[k_best])
@@ -134,8 +138,6 @@ def _stage(
             on_generation()
         return cost
 
-    start_cost = float(objective(centre[:, None])[0])
-    record["best"].clear()
     differential_evolution(
         objective,
         bounds=[(c - half, c + half) for c in centre],
@@ -149,6 +151,9 @@ def _stage(
         vectorized=True,
         updating="deferred",
     )
+    if math.isnan(record["start_cost"]):  # x0 not met exactly (scipy clips to the bounds)
+        objective(centre[:, None])
+    start_cost = record["start_cost"]
     best = candidate(record["best_x"]) if record["best_cost"] < start_cost else start
     return StageResult(
         loops=loops,
@@ -163,9 +168,9 @@ def _stage(
 
 
 def generations(settings: TuneSettings) -> int:
-    """Objective calls of a whole tune (for a progress bar): per stage the start, the
-    initial population and ``maxiter`` generations."""
-    return len(settings.stages()) * (settings.maxiter + 2)
+    """Objective calls of a whole tune (for a progress bar): per stage the initial
+    population (the start gains are its first member) and ``maxiter`` generations."""
+    return len(settings.stages()) * (settings.maxiter + 1)
 
 
 def tune(

@@ -55,3 +55,17 @@ def test_joint_mode_tunes_all_gains_in_one_stage(bench, short_move):
     result = tune([short_move], GainSet.from_bench(bench), settings)
     assert [s.loops for s in result.stages] == [("current", "velocity", "position")]
     assert result.stages[0].cost <= result.stages[0].start_cost
+
+
+def test_start_cost_is_the_config_gains_cost(bench, short_move, tuned):
+    """The start gains are the first member of the initial population; its cost is the
+    stage's start cost (penalised when the gate refuses it, as the margin spec may)."""
+    start = GainSet.from_bench(bench)
+    stage = tuned.stages[0]
+    if linear.rejection_reasons(bench, start, SETTINGS.margins):
+        assert stage.start_cost >= 1e6
+    else:
+        ev = evaluate([short_move], [start], weights=CostWeights(), seed=SETTINGS.seed)
+        # Same gains, same seed, another batch size: the noise draws differ.
+        assert stage.start_cost == pytest.approx(float(ev.cost[0]), rel=0.5)
+    assert stage.cost <= stage.start_cost
