@@ -358,7 +358,7 @@ class Simulation:
             cols["voltage_v"] = np.array(self._volts, dtype=float)
             return RunLog(**cols)
         n = self.tick
-        cols = {f: self._arrays[f][:, :n].copy() for f in LOG_FIELDS if f != "t_s"}
+        cols = {f: self._arrays[f][:n].T.copy() for f in LOG_FIELDS if f != "t_s"}
         cols["t_s"] = np.arange(n) * self.dt_s
         return RunLog(**cols)
 
@@ -424,9 +424,9 @@ class Simulation:
             if f == "t_s":
                 continue
             dtype = np.int64 if f in _INT_FIELDS else float
-            new = np.zeros((n, cap), dtype=dtype)
+            new = np.zeros((cap, n), dtype=dtype)  # row per tick: contiguous writes
             if f in self._arrays:
-                new[:, : self._cap] = self._arrays[f]
+                new[: self._cap] = self._arrays[f]
             self._arrays[f] = new
         self._cap = cap
 
@@ -440,11 +440,11 @@ class Simulation:
         arrays = self._arrays
         # Plant signals at the sampling instant, where the firmware sees them.
         pos = x[:, 1]
-        arrays["true_pos_deg"][:, k] = pos * self._deg_per_rad_axis
-        arrays["true_vel_dps"][:, k] = x[:, VEL] * self._deg_per_rad_axis
-        arrays["platter_pos_deg"][:, k] = np.degrees(pos / self._n_total - x[:, TWIST])
-        arrays["motor_pos_rad"][:, k] = pos
-        arrays["current_a"][:, k] = x[:, I_A]
+        arrays["true_pos_deg"][k] = pos * self._deg_per_rad_axis
+        arrays["true_vel_dps"][k] = x[:, VEL] * self._deg_per_rad_axis
+        arrays["platter_pos_deg"][k] = np.degrees(pos / self._n_total - x[:, TWIST])
+        arrays["motor_pos_rad"][k] = pos
+        arrays["current_a"][k] = x[:, I_A]
         counts = self.encoder.read_batch(x)
         tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
         if tx:
@@ -469,8 +469,8 @@ class Simulation:
         self._x = x
         sig = fw.signals()
         for f in FW_FIELDS:
-            arrays[f][:, k] = sig[f]
-        arrays["voltage_v"][:, k] = np.where(self._enable, self._duty * self._vs, 0.0)
+            arrays[f][k] = sig[f]
+        arrays["voltage_v"][k] = np.where(self._enable, self._duty * self._vs, 0.0)
         self.tick += 1
         self._move_bytes()
 

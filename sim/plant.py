@@ -248,33 +248,33 @@ def ladder_rows(
 def mode_keys(x: np.ndarray, duty: Any, enable: Any, co: Coefficients) -> np.ndarray:
     """Mode key of every batch member (x of shape (N, 5)) -> int array (N,)."""
     i, w, tw, wp = x[:, I_A], x[:, VEL], x[:, TWIST], x[:, PVEL]
-    fm = np.where(w > co.wbm, 2, np.where(w < -co.wbm, 0, 1))
-    fp = np.where(wp > co.wbp, 2, np.where(wp < -co.wbp, 0, 1))
-    contact = np.where(tw > co.half, 2, np.where(tw < -co.half, 0, 1))
-    tb = np.where(
-        contact == 1,
-        0.0,
-        co.k * (tw - co.half * (contact - 1)) + co.c * (w / co.n - wp),
-    )
+    fm = 1 + (w > co.wbm).astype(np.int64) - (w < -co.wbm)
+    fp = 1 + (wp > co.wbp).astype(np.int64) - (wp < -co.wbp)
+    side = (tw > co.half).astype(np.int64) - (tw < -co.half)  # -1, 0, +1
+    tb = (side != 0) * (co.k * (tw - co.half * side) + co.c * (w * co.inv_n - wp))
     flow = (tb * w < 0).astype(np.int64)
-    drive = co.vs * duty - co.r * i - co.ke * w
-    on = np.where(
-        (i >= co.icl) & (drive > 0),
-        B_LIMIT_POS,
-        np.where((i <= -co.icl) & (drive < 0), B_LIMIT_NEG, B_ON),
-    )
-    emf = co.ke * w
-    off = np.where(
-        i > 0,
-        B_DIODE_POS,
-        np.where(
-            i < 0,
-            B_DIODE_NEG,
-            np.where(emf > co.vd2, B_DIODE_NEG, np.where(emf < -co.vd2, B_DIODE_POS, B_OPEN)),
-        ),
-    )
-    bridge = np.where(enable, on, off)
-    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+    # The bridge: on, unless the chip limits the current or the bridge is disabled.
+    bridge = np.zeros(x.shape[0], dtype=np.int64)
+    if np.any(np.abs(i) >= co.icl):
+        drive = co.vs * duty - co.r * i - co.ke * w
+        bridge = np.where(
+            (i >= co.icl) & (drive > 0),
+            B_LIMIT_POS,
+            np.where((i <= -co.icl) & (drive < 0), B_LIMIT_NEG, B_ON),
+        )
+    if not np.all(enable):
+        emf = co.ke * w
+        off = np.where(
+            i > 0,
+            B_DIODE_POS,
+            np.where(
+                i < 0,
+                B_DIODE_NEG,
+                np.where(emf > co.vd2, B_DIODE_NEG, np.where(emf < -co.vd2, B_DIODE_POS, B_OPEN)),
+            ),
+        )
+        bridge = np.where(enable, bridge, off)
+    return (((bridge * 3 + fm) * 3 + fp) * 3 + side + 1) * 2 + flow
 
 
 def derivative(t: float, x: np.ndarray, u: tuple[Any, Any], params: PlantParams) -> np.ndarray:
@@ -543,13 +543,18 @@ class ScalarPlant:
         return self._advance(half, d, en, self.key(half, d, en), level + 1)
 
 
+# Below this many switching members, BatchPlant hands them to the scalar recursion.
+_SCALAR_EVENTS = 8
+
+
 class BatchPlant:
     """N plants stepped in lock-step with numpy; parameters scalar or ``(N,)`` per member.
 
     ``update(t_s, x, u) -> x_next`` with ``x`` of shape ``(N, 5)`` and ``u = (duty (N,),
     enable (N,))``. Members whose mode stays the same over the step (almost all, almost
-    always) share one matrix product per mode; the few that switch mode are stepped by the
-    members' ``ScalarPlant`` with event location.
+    always) share one matrix product per mode; the members that switch mode are halved
+    again, vectorised (shared parameters), or by their own ``ScalarPlant`` (per-member
+    parameters). The Hermite excursion check of ``ScalarPlant`` is not run here.
     """
 
     def __init__(self, params: PlantParams, n: int, h_s: float, event_levels: int = 20) -> None:
@@ -566,51 +571,110 @@ class BatchPlant:
             shared = ScalarPlant(params, h_s, event_levels)
             self.members = [shared] * n
         self._phi: dict[int, np.ndarray] = {}
+        self.event_levels = int(event_levels)
+        self.split_budget = 4 * self.event_levels + 8
+        self._splits = 0
 
     @property
     def n_events(self) -> int:
         return sum(p.n_events for p in {id(p): p for p in self.members}.values())
 
-    def _phi_t(self, key: int) -> np.ndarray:
+    def _phi_t(self, key: int, level: int = 0) -> np.ndarray:
         """Transposed ``Phi`` for row-vector products: (7, 5) shared or (N, 7, 5)."""
-        mat = self._phi.get(key)
+        slot = key * 64 + level
+        mat = self._phi.get(slot)
         if mat is None:
             if self.per_member:
-                mat = np.stack([np.array(p.phi(key)).T for p in self.members])
+                mat = np.stack([np.array(p.phi(key, level)).T for p in self.members])
             else:
-                mat = np.array(self.members[0].phi(key)).T
+                mat = np.array(self.members[0].phi(key, level)).T
             mat = np.ascontiguousarray(mat)
-            self._phi[key] = mat
+            self._phi[slot] = mat
         return mat
+
+    def _apply(
+        self, x: np.ndarray, duty: np.ndarray, keys: np.ndarray, level: int, rows: Any = None
+    ) -> np.ndarray:
+        """One step of every state in its mode (``rows``: member indices, per-member)."""
+        xa = np.empty((x.shape[0], N_X + 2))
+        xa[:, :N_X] = x
+        xa[:, N_X] = duty
+        xa[:, N_X + 1] = 1.0
+        k0 = int(keys[0])
+        if bool(np.all(keys == k0)):
+            groups: list[tuple[int, Any]] = [(k0, None)]
+        else:
+            groups = [(int(k), keys == k) for k in np.unique(keys)]
+        xn = np.empty_like(x, dtype=float)
+        for key, sel in groups:
+            phi_t = self._phi_t(key, level)
+            # einsum, not matmul: BLAS goes multi-threaded on these small products.
+            if self.per_member:
+                mats = phi_t if rows is None else phi_t[rows]
+                if sel is None:
+                    xn[:] = np.einsum("nj,nji->ni", xa, mats)
+                else:
+                    xn[sel] = np.einsum("nj,nji->ni", xa[sel], mats[sel])
+            elif sel is None:
+                np.einsum("nj,ji->ni", xa, phi_t, out=xn)
+            else:
+                xn[sel] = np.einsum("nj,ji->ni", xa[sel], phi_t)
+        return xn
+
+    def _events(
+        self, x: np.ndarray, duty: np.ndarray, enable: np.ndarray, keys: np.ndarray, level: int
+    ) -> np.ndarray:
+        """The halving of ``ScalarPlant._advance``, vectorised over the members that switch
+        mode (shared parameters only)."""
+        xn = self._apply(x, duty, keys, level)
+        k_end = mode_keys(xn, duty, enable, self.co)
+        bad = k_end != keys
+        if not bad.any():
+            return xn
+        if level >= self.event_levels or self._splits <= 0:
+            i = xn[:, I_A]
+            b0, b1 = keys // 54, k_end // 54
+            blocked = ((b0 == B_DIODE_POS) & (i < 0)) | ((b0 == B_DIODE_NEG) & (i > 0))
+            xn[bad & blocked, I_A] = 0.0
+            icl = self.co.icl
+            xn[bad & (b1 == B_LIMIT_POS) & (i > icl), I_A] = icl
+            xn[bad & (b1 == B_LIMIT_NEG) & (i < -icl), I_A] = -icl
+            return xn
+        b = np.nonzero(bad)[0]
+        if b.size <= _SCALAR_EVENTS:
+            # A few members: the scalar recursion is cheaper than numpy on tiny arrays.
+            plant = self.members[0]
+            for j in b:
+                plant._splits = plant.split_budget
+                xn[j] = plant._advance(
+                    x[j].tolist(), float(duty[j]), bool(enable[j]), int(keys[j]), level
+                )
+            return xn
+        self._splits -= 1
+        d, e = duty[b], enable[b]
+        xm = self._events(x[b], d, e, keys[b], level + 1)
+        xn[b] = self._events(xm, d, e, mode_keys(xm, d, e, self.co), level + 1)
+        return xn
 
     def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
         duty, enable = u
         duty = np.broadcast_to(np.asarray(duty, dtype=float), (self.n,))
         enable = np.broadcast_to(np.asarray(enable, dtype=bool), (self.n,))
         keys = mode_keys(x, duty, enable, self.co)
-        xa = np.empty((self.n, N_X + 2))
-        xa[:, :N_X] = x
-        xa[:, N_X] = duty
-        xa[:, N_X + 1] = 1.0
-        k0 = int(keys[0])
-        uniform = bool(np.all(keys == k0))
-        groups = [(k0, None)] if uniform else [(int(k), keys == k) for k in np.unique(keys)]
-        xn = np.empty_like(x, dtype=float)
-        for key, sel in groups:
-            phi_t = self._phi_t(key)
-            if self.per_member:
-                if sel is None:
-                    xn[:] = np.einsum("nj,nji->ni", xa, phi_t)
-                else:
-                    xn[sel] = np.einsum("nj,nji->ni", xa[sel], phi_t[sel])
-            # einsum, not matmul: BLAS goes multi-threaded on these small products.
-            elif sel is None:
-                np.einsum("nj,ji->ni", xa, phi_t, out=xn)
-            else:
-                xn[sel] = np.einsum("nj,ji->ni", xa[sel], phi_t)
+        xn = self._apply(x, duty, keys, 0)
         moved = np.nonzero(mode_keys(xn, duty, enable, self.co) != keys)[0]
-        for j in moved:
-            xn[j] = self.members[j].update(t_s, x[j].tolist(), (float(duty[j]), bool(enable[j])))
+        if moved.size == 0:
+            return xn
+        if self.per_member or moved.size <= _SCALAR_EVENTS:
+            for j in moved:
+                xj = x[j].tolist()
+                xn[j] = self.members[j].update(t_s, xj, (float(duty[j]), bool(enable[j])))
+            return xn
+        # One budget per switching member, as each ScalarPlant would have.
+        self._splits = self.split_budget * moved.size
+        d, e = duty[moved], enable[moved]
+        xm = self._events(x[moved], d, e, keys[moved], 1)
+        xn[moved] = self._events(xm, d, e, mode_keys(xm, d, e, self.co), 1)
         return xn
 
 

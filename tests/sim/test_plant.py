@@ -234,3 +234,22 @@ def test_hidden_excursion_into_a_band_is_detected():
     assert not _hermite_leaves(-0.3, -0.3, 0.4, -0.4, 0.1)  # peaks at -0.2: stays out
     assert not _hermite_leaves(-30.0, -29.0, 1.0, 1.0, 0.1)  # far away: gate
     assert _hermite_leaves(0.5, 0.5, -4.0, 4.0, 0.1)  # dips through the band to the other side
+
+
+def test_shared_parameter_batch_locates_switches_like_the_scalar_plant():
+    # 12 members switch together (more than the scalar hand-off threshold of 8): the
+    # vectorised halving runs; it must give what 12 ScalarPlants give.
+    params = PlantParams()
+    duties = np.linspace(-0.9, 0.9, 12)
+    n = duties.size
+    batch = BatchPlant(params, n, DT_S)
+    x = np.zeros((n, 5))
+    scalars = [ScalarPlant(params, DT_S) for _ in range(n)]
+    xs = [[0.0] * 5 for _ in range(n)]
+    for k in range(400):
+        sign = 1.0 if (k // 100) % 2 == 0 else -1.0  # reversals: bands, gap, power flow
+        x = batch.update(k * DT_S, x, (sign * duties, True))
+        for j in range(n):
+            xs[j] = scalars[j].update(k * DT_S, xs[j], (sign * float(duties[j]), True))
+    assert sum(p.n_events for p in scalars) > 20
+    np.testing.assert_allclose(x, np.array(xs), rtol=1e-9, atol=1e-9)
