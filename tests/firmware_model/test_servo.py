@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
-from firmware_model.servo import ArrayLaw, ScalarFixedLaw, ScalarLaw
+from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
 from firmware_model.units import AXIS_DEG_PER_COUNT
 
 
