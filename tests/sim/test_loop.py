@@ -207,3 +207,23 @@ def test_loop_order_duty_applies_to_the_following_plant_step(bench):
     assert ctl.adc[1] == round(log.current_a[1] / a_per_lsb)
     assert ctl.adc[2] == 0  # duty 0 during tick 1: no high side conducts
     assert ctl.counts[0] == 0 and ctl.counts[2] > 0
+
+
+def test_bench_reaches_the_papers_990_dps_and_148_dps2_within_24_v_and_5_a(tmp_path):
+    """docs/model.md section 5 in simulation: a 4000 deg move at v_max 990, a_max 148."""
+    body = """
+[[command]]
+t_s = 0.0
+type = "move"
+target_deg = 8000.0
+v_max_dps = 990.0
+a_max_dps2 = 148.0
+"""
+    exp = load_experiment(_experiment(tmp_path, body, duration_s=9.0))
+    log = run(exp).log
+    cruise = log.sp_vel_dps >= 989.9
+    assert cruise.sum() > 100  # it reached the cruise and held it
+    np.testing.assert_allclose(log.true_vel_dps[cruise], 990.0, atol=3.0)
+    assert np.max(np.abs(log.current_a)) < 5.0
+    assert np.max(np.abs(log.duty)) < 0.95  # headroom left under 24 V
+    assert np.all(log.fault == 0)
