@@ -4,8 +4,9 @@ Modules:
 
 * ``firmware``: :class:`~firmware_model.firmware.Firmware`, the board (``servo_tick``,
   ``current_tick``, ``signals``, ``counters``): states, commands and NACKs, trips, telemetry.
-* ``servo``: the control law (encoder unwrap, velocity observer, position/velocity/current
-  loops) in float, in Q-format fixed point, scalar and batch.
+* ``servo``: what the control law computes (encoder unwrap, velocity observer,
+  position/velocity/current loops); ``laws/`` holds its variants, one per file: float and
+  Q-format fixed point, scalar and batch.
 * ``params``: one frozen dataclass per TOML table, ``TABLES``, ``FirmwareParams``, the
   default gains derived from the nominal plant.
 * ``stability``: the linear check behind ``NackCode.UNSTABLE_GAINS``.

@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model.params import FirmwareParams
 from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
+from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
 from planner.online import OnlinePlanner
 from serial_protocol import frame

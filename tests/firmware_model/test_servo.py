@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
 from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
+from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
 from firmware_model.units import AXIS_DEG_PER_COUNT
 
 
