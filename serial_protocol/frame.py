@@ -159,33 +159,6 @@ _NACK = _lookup(NackCode)
 _BOOL = {0: False, 1: True}
 
 
-# Telemetry is decoded every tick on the PC side. A frozen dataclass's own __init__ sets
-# each field through object.__setattr__ (about 1.5 us for nine fields); writing the slots
-# through their member descriptors builds the same immutable object in half the time.
-_TELEMETRY_SLOTS = tuple(getattr(Telemetry, name).__set__ for name in Telemetry.__slots__)
-if Telemetry.__slots__ != (
-    "tick", "sp_pos_deg", "sp_vel_dps", "pos_deg", "vel_dps", "current_a", "duty", "state",
-    "fault",
-):  # fmt: skip
-    raise RuntimeError(f"Telemetry fields changed: {Telemetry.__slots__}; update frame.py")
-
-
-def _telemetry_from_wire(t: tuple) -> Telemetry:
-    s_tick, s_sp_pos, s_sp_vel, s_pos, s_vel, s_cur, s_duty, s_state, s_fault = _TELEMETRY_SLOTS
-    state, fault = _STATE[t[7]], _FAULT[t[8]]  # KeyError (-> Malformed) before building
-    msg = object.__new__(Telemetry)
-    s_tick(msg, t[0])
-    s_sp_pos(msg, t[1] / POS_SCALE)
-    s_sp_vel(msg, t[2] / VEL_SCALE)
-    s_pos(msg, t[3] / POS_SCALE)
-    s_vel(msg, t[4] / VEL_SCALE)
-    s_cur(msg, t[5] / CURRENT_SCALE)
-    s_duty(msg, t[6] / DUTY_SCALE)
-    s_state(msg, state)
-    s_fault(msg, fault)
-    return msg
-
-
 @dataclass(frozen=True)
 class _Row:
     cls: type
@@ -265,7 +238,17 @@ _ROWS: tuple[_Row, ...] = (
             m.state,
             m.fault,
         ),
-        _telemetry_from_wire,
+        lambda t: Telemetry(
+            t[0],
+            t[1] / POS_SCALE,
+            t[2] / VEL_SCALE,
+            t[3] / POS_SCALE,
+            t[4] / VEL_SCALE,
+            t[5] / CURRENT_SCALE,
+            t[6] / DUTY_SCALE,
+            _STATE[t[7]],
+            _FAULT[t[8]],
+        ),
     ),
     _Row(Ack, "HB", lambda m: (m.cmd_id, m.msg_type), lambda t: Ack(t[0], t[1])),
     _Row(
