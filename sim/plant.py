@@ -418,6 +418,7 @@ class ScalarPlant:
         self.split_budget = 4 * self.event_levels + 8
         self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
         self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
+        self._g_max = 1.0 / (self.co.n * self.co.eta)
         self._splits = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
@@ -478,10 +479,33 @@ class ScalarPlant:
         share a mode (a velocity dipping into a friction band and out, a short trip
         through the backlash gap). Each boundary variable (motor speed, platter speed,
         twist) is interpolated by the cubic Hermite through its values and rates at both
-        ends; an interior extremum on the other side of a boundary calls for halving."""
+        ends; an interior extremum on the other side of a boundary calls for halving.
+
+        A speed whose ends are farther from its band than ``h`` times a bound on its
+        acceleration cannot reach the band and is not interpolated: the motor's bound uses
+        the largest current the armature can approach, ``(V_s + |K_e w|) / R``; the
+        platter's twice the belt torque at the ends plus its friction."""
         co = self.co
         i0, _, w0, t0, p0 = x
         i1, _, w1, t1, p1 = xn
+        r0 = w0 * co.inv_n - p0
+        r1 = w1 * co.inv_n - p1
+        if _hermite_leaves(t0, t1, r0 * h, r1 * h, co.half):
+            return True
+        aw0, aw1 = abs(w0), abs(w1)
+        wmax = aw0 if aw0 > aw1 else aw1
+        tbmax = co.k * max(abs(t0), abs(t1)) + co.c * max(abs(r0), abs(r1))
+        i_bound = max(abs(i0), abs(i1), (co.vs + co.ke * wmax) / co.r)
+        a_m = (co.kt * i_bound + co.tcm + co.bm * wmax + tbmax * self._g_max) / co.jm
+        gate_m = co.wbm + h * a_m
+        check_m = aw0 <= gate_m or aw1 <= gate_m
+        ap0, ap1 = abs(p0), abs(p1)
+        a_p = (2.0 * tbmax + co.tcp + co.bp * max(ap0, ap1)) / co.jp
+        gate_p = co.wbp + h * a_p
+        check_p = ap0 <= gate_p or ap1 <= gate_p
+        if not (check_m or check_p):
+            self._rate_cache = (None, -1, 0.0, 0.0)
+            return False
         rv, rp = self._rates(key)
         cache = self._rate_cache
         if cache[0] is x and cache[1] == key:
@@ -493,11 +517,8 @@ class ScalarPlant:
         pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
         # The end's rates are the next step's start rates (same state object, same mode).
         self._rate_cache = (xn, key, wd1, pd1)
-        inv_n = co.inv_n
-        return (
-            _hermite_leaves(w0, w1, wd0 * h, wd1 * h, co.wbm)
-            or _hermite_leaves(p0, p1, pd0 * h, pd1 * h, co.wbp)
-            or _hermite_leaves(t0, t1, (w0 * inv_n - p0) * h, (w1 * inv_n - p1) * h, co.half)
+        return (check_m and _hermite_leaves(w0, w1, wd0 * h, wd1 * h, co.wbm)) or (
+            check_p and _hermite_leaves(p0, p1, pd0 * h, pd1 * h, co.wbp)
         )
 
     def update(self, t_s: float, x: list[float], u: tuple[float, bool]) -> list[float]:
