@@ -227,3 +227,21 @@ a_max_dps2 = 148.0
     assert np.max(np.abs(log.current_a)) < 5.0
     assert np.max(np.abs(log.duty)) < 0.95  # headroom left under 24 V
     assert np.all(log.fault == 0)
+
+
+def test_a_trip_disables_the_bridge_and_the_motor_coasts_on_its_diodes(tmp_path):
+    """A following-error trip through the whole loop: fault code in the log and on the
+    wire, bridge off, the armature current freewheels to exactly zero and the axis coasts."""
+    body = "[limits]\nfollowing_error_deg = 0.05\n" + MOVE.format(target=360.0)
+    exp = load_experiment(_experiment(tmp_path, body, duration_s=1.5))
+    res = run(exp)
+    log = res.log
+    tripped = np.nonzero(log.fault != 0)[0]
+    assert tripped.size > 0
+    k = int(tripped[0])
+    assert log.fault[k] == 2 and np.all(log.state[k:] == State.FAULT)
+    assert any(type(m).__name__ == "FaultReport" for m in res.replies)
+    after = slice(k + 5, None)
+    assert np.all(log.voltage_v[after] == 0.0)
+    assert np.all(log.current_a[after] == 0.0)  # blocked by the diodes, not just small
+    assert abs(log.true_vel_dps[-1]) < abs(log.true_vel_dps[k])  # coasting down
