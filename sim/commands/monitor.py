@@ -268,16 +268,19 @@ def _interactive(client: Any, status: Any, run: Any) -> None:
         if not ready:
             client.collect(0.05)
             continue
-        line = sys.stdin.readline()
-        if not line or line.strip() in ("quit", "exit"):
+        raw = sys.stdin.readline()
+        if not raw:
+            return  # end of input
+        line = raw.strip()
+        if line in ("quit", "exit"):
             return
-        if not line.strip():
+        if not line:
             continue
-        if line.strip() == "help":
+        if line == "help":
             status.say(INTERACTIVE_HELP)
             continue
         try:
-            run(line.strip(), parse_command(client, line))
+            run(line, parse_command(client, line))
         except CommandError as exc:
             status.say(f"error: {exc}")
 

@@ -198,3 +198,25 @@ def test_monitor_over_can_virtual_bus_and_decode_its_log(tmp_path, capsys):
     report = capsys.readouterr().out
     assert "HelloReply     1" in report and "Hello          1" in report
     assert "Move           1" in report and "reassembly errors 0" in report
+
+
+def test_interactive_session_from_stdin():
+    import subprocess
+    import sys
+
+    board = TcpBoard()
+    board.start()
+    script = "help\nstatus\nmove 45 100 200\nfly away\ngains position 2 0 0\nquit\n"
+    done = subprocess.run(
+        [sys.executable, "-m", "sim.cli", "monitor", board.url, "--interactive",
+         "--ack-timeout", "2", "--quiet"],
+        input=script, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    board.join(timeout=5)
+    assert done.returncode == 0, done.stderr
+    assert "move TARGET_DEG" in done.stdout  # the help text
+    assert "error: 'fly away': unknown command" in done.stdout
+    names = [type(m).__name__ for m in board.received]
+    assert names == ["Hello", "GetStatus", "Move", "SetGains"]
+    assert board.received[2] == Move(board.received[2].cmd_id, 45.0, 100.0, 200.0)
+    assert "commands 4: acks 3" in done.stdout
