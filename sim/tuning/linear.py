@@ -227,12 +227,19 @@ def _servo_loop(bench: BenchConfig, gains: GainSet, plant: LinearPlant, loop: st
     c_est = fw.estimator.accel_per_amp_dps2
     r_ff = _scalar(fw.current.resistance_ohm, "resistance_ohm")
     emf_ff = _scalar(fw.current.back_emf_v_per_dps, "back_emf_v_per_dps")
-    names = ["i", "v", "p", "i_prev", "pe", "ve", "ae", "int_v", "int_i"]
+    expected = _observer_uses_expected_current(bench)
+    names = ["i", "v", "p", "i_prev", "pe", "ve", "ae", "int_v", "int_i", "ref_d_last"]
     names += [f"r{k}" for k in range(d + 1)] + [f"u{k}" for k in range(d)]
     r = _Rows(names)
     # 1-2. Sample the encoder (true position) and run the observer with the current sample
     # of the previous tick as its known input.
-    acc = c_est * r["i_prev"] + r["ae"]
+    if expected:
+        # The current of the period that just ended: the reference of the duty applied in
+        # it plus the model error seen at the last sample (firmware_model/laws).
+        i_obs = r["r0"] + r["i_prev"] - r["ref_d_last"]
+    else:
+        i_obs = r["i_prev"]  # the last sample
+    acc = c_est * i_obs + r["ae"]
     pred = r["pe"] + dt * r["ve"] + 0.5 * dt * dt * acc
     err = r["p"] - pred
     nxt: dict[str, np.ndarray] = {
@@ -260,9 +267,11 @@ def _servo_loop(bench: BenchConfig, gains: GainSet, plant: LinearPlant, loop: st
     refs = [r[f"r{k}"] for k in range(d + 1)]
     pipe = [r[f"u{k}"] for k in range(d)]
     sample = r["i"]
+    ref_d = r["ref_d_last"]
     for _ in range(mult):
         sample = state["i"]
-        e = refs[0] - sample
+        ref_d = refs[0]
+        e = ref_d - sample
         refs = refs[1:] + [i_ref]
         u = gains.kp_i_v_per_a * e + state["int_i"] + r_ff * i_ref + emf_ff * vel_est
         state["int_i"] = state["int_i"] + gains.ki_i_v_per_as * h * e
@@ -276,12 +285,23 @@ def _servo_loop(bench: BenchConfig, gains: GainSet, plant: LinearPlant, loop: st
         state["i"], state["v"], state["p"] = new
     nxt.update({n: state[n] for n in ("i", "v", "p", "int_i")})
     nxt["i_prev"] = sample
+    nxt["ref_d_last"] = ref_d
     nxt.update({f"r{k}": refs[k] for k in range(d + 1)})
     nxt.update({f"u{k}": pipe[k] for k in range(d)})
     lt = _finish(loop, r, nxt, y, dt)
     if loop == "velocity":
         lt = _drop_position_mode(lt, r.index["p"], r.index["pe"])
     return lt
+
+
+def _observer_uses_expected_current(bench: BenchConfig) -> bool:
+    """Which current the firmware's observer takes as its known input: the last sample
+    (as first committed) or the expected current of the period that just ended (reference
+    plus the last sample's model error). Read off the law in use, so that the model follows
+    the firmware; see the report of issue 6 for a public flag."""
+    from firmware_model.servo import ScalarLaw
+
+    return hasattr(ScalarLaw(bench.firmware), "_ref_d_last")
 
 
 def _drop_position_mode(lt: LoopTransfer, ip: int, ipe: int) -> LoopTransfer:

@@ -105,11 +105,20 @@ def test_margin_spec_refuses_small_margins(bench):
     assert linear.rejection_reasons(bench, gains) == []
 
 
+def _velocity_gain_limit(bench, gains: GainSet) -> float:
+    """The smallest velocity Kp (on a 2 % grid) the gate refuses."""
+    kp = gains.kp_v_a_per_dps
+    while not linear.rejection_reasons(bench, gains.replace(kp_v_a_per_dps=kp)):
+        kp *= 1.02
+    return kp
+
+
 def test_gate_agrees_with_the_simulator(bench):
-    """A velocity gain the gate accepts holds still; the first one it refuses rings."""
+    """A velocity gain half the gate's limit holds still; 15 % past the limit it rings."""
     gains = GainSet.from_bench(bench)
-    ok = gains.replace(kp_v_a_per_dps=gains.kp_v_a_per_dps * 3)
-    bad = gains.replace(kp_v_a_per_dps=gains.kp_v_a_per_dps * 6)
+    limit = _velocity_gain_limit(bench, gains)
+    ok = gains.replace(kp_v_a_per_dps=limit * 0.5)
+    bad = gains.replace(kp_v_a_per_dps=limit * 1.15)
     assert linear.rejection_reasons(bench, ok) == []
     assert "velocity loop unstable" in linear.rejection_reasons(bench, bad)[0]
     hold = Experiment(
@@ -140,7 +149,10 @@ def test_gains_from_the_wire_are_refused_by_the_firmware_with_this_gate(bench):
     exp = Experiment(
         bench=bench,
         duration_s=0.1,
-        commands=(set_gains(0.01, gains.kp_v_a_per_dps * 6), set_gains(0.05, 0.1)),
+        commands=(
+            set_gains(0.01, _velocity_gain_limit(bench, gains) * 1.15),
+            set_gains(0.05, 0.1),
+        ),
     )
     board = Firmware(bench.firmware, gain_check=linear.firmware_gain_check(bench))
     replies = run(exp, firmware=board).replies
