@@ -127,17 +127,24 @@ class ArrayLaw(LawBase):
             self._pipe_i = 0
             self._ref_pipe = np.zeros((self.delay + 1, self.n), dtype=dtype)
             self._ref_i = 0
+            self._ref_d_last = np.zeros(self.n, dtype=dtype)
             return
         for arr in (self._i_v, self._i_i, self._vr, self._iref, self._steps):
             arr[mask] = 0
         self._pipe[:, mask] = 0
         self._ref_pipe[:, mask] = 0
+        self._ref_d_last[mask] = 0
         self.duty = np.where(mask, 0.0, self.duty)  # a new array: callers may hold the old
 
     # -- the three steps
     def estimate(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.asarray(raw_counts, dtype=np.int64)
-        acc = self._sat(self._mul(self._imeas, self._k_acc) + self._ad)
+        # The current of the period that just ended: the reference of the duty applied in it
+        # plus the model error seen at the last sample (the sample of this tick comes later).
+        i_expected = self._sat(
+            self._ref_pipe[self._ref_i] + self._sat(self._imeas - self._ref_d_last)
+        )
+        acc = self._sat(self._mul(i_expected, self._k_acc) + self._ad)
         half_acc = self._mul(acc, self._half)
         if self.fixed:
             pred = fx.sat32(fx.sat32(self._ep + self._v) + half_acc)
@@ -203,6 +210,7 @@ class ArrayLaw(LawBase):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
+        self._ref_d_last = ref_d.copy()
         blind = (adc <= self.sense_floor) & (np.sign(ref_d) * sign <= 0)
         i_meas = np.where(blind, ref_d, i_meas)
         e = self._sat(ref_d - i_meas)
@@ -240,7 +248,8 @@ class ArrayLaw(LawBase):
     # -- the float64 steps: the same arithmetic as ScalarLaw, in the same order
     def _estimate_float(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.asarray(raw_counts, dtype=np.int64)
-        acc = self._imeas * self._k_acc + self._ad
+        i_expected = self._ref_pipe[self._ref_i] + (self._imeas - self._ref_d_last)
+        acc = i_expected * self._k_acc + self._ad
         pred = self._ep + self._v + acc * 0.5
         pred_int = np.floor(pred + 0.5).astype(np.int64)
         delta = (raw - self.count - pred_int) % REV
@@ -287,6 +296,7 @@ class ArrayLaw(LawBase):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
+        self._ref_d_last = ref_d.copy()
         blind = (adc <= self.sense_floor) & (np.sign(ref_d) * sign <= 0)
         i_meas = np.where(blind, ref_d, i_meas)
         e = ref_d - i_meas

@@ -79,11 +79,16 @@ class ScalarLaw(LawBase):
         self._pipe_i = 0
         self._ref_pipe = [0.0] * (self.delay + 1)
         self._ref_i = 0
+        self._ref_d_last = 0.0
 
     def estimate(self, raw_counts: int) -> None:
         """Unwrap the reading and update the velocity observer."""
         raw = int(raw_counts)
-        acc = self.counts_tick2_per_a * self.current_meas_a + self._ad
+        # The current of the period that just ended: the reference of the duty applied in it
+        # plus the model error seen at the last sample (this tick's sample comes later; the
+        # last sample is a period old, and feeding it in cost half the velocity gain margin).
+        i_expected = self._ref_pipe[self._ref_i] + (self.current_meas_a - self._ref_d_last)
+        acc = self.counts_tick2_per_a * i_expected + self._ad
         pred = self._ep + self._v + 0.5 * acc
         pred_int = math.floor(pred + 0.5)
         delta = (raw - self.count - pred_int) % REV
@@ -148,6 +153,7 @@ class ScalarLaw(LawBase):
         # (delay + 1 periods ago); the feed-forward acts on the present reference.
         k = self._ref_i
         ref_d = self._ref_pipe[k]
+        self._ref_d_last = ref_d
         if adc_counts <= self.sense_floor and ref_d * applied <= 0.0:
             # High-side sense blind (current against the duty, or no duty): trust the model.
             i_meas = ref_d

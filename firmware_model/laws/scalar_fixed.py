@@ -94,10 +94,12 @@ class ScalarFixedLaw(LawBase):
         self._pipe_i = 0
         self._ref_pipe = [0] * (self.delay + 1)
         self._ref_i = 0
+        self._ref_d_last = 0
 
     def estimate(self, raw_counts: int) -> None:
         raw = int(raw_counts)
-        acc = _qsat(_qmul(self._imeas, self._k_acc) + self._ad)
+        i_expected = _qsat(self._ref_pipe[self._ref_i] + _qsat(self._imeas - self._ref_d_last))
+        acc = _qsat(_qmul(i_expected, self._k_acc) + self._ad)
         pred = _qsat(_qsat(self._ep + self._v) + _qmul(acc, self._half))
         pred_int = (pred + (1 << 15)) >> fx.SIG_FRAC_BITS
         delta = (raw - self.count - pred_int) % REV
@@ -148,6 +150,7 @@ class ScalarFixedLaw(LawBase):
         i_ref = self._iref
         k = self._ref_i
         ref_d = self._ref_pipe[k]
+        self._ref_d_last = ref_d
         if adc <= self.sense_floor and ((ref_d > 0) - (ref_d < 0)) * sign <= 0:
             i_meas = ref_d
         e = _qsat(ref_d - i_meas)

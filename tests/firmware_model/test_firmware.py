@@ -387,9 +387,9 @@ def test_fixed_point_agrees_with_float(make_bench):
     # Same run, two arithmetics: the difference is Q16.16 rounding (1.5e-5 of a unit) and
     # Q8.24 gains (6e-8), which moves a duty by one ARR step now and then (and, once in a
     # while, an ADC reading across the blind-sense floor: a few steps for one tick); Coulomb
-    # friction then lets the axis come to rest a few counts apart. Measured: position max 7
-    # counts (mean 1.6), velocity 0.23 deg/s, current reference 0.016 A, duty max 5 steps
-    # (mean 0.43).
+    # friction then lets the axis come to rest a few counts apart. Measured: position max 3
+    # counts (mean 0.6), velocity 0.08 deg/s, current reference 0.006 A, duty max 2 steps
+    # (mean 0.35); with an earlier observer input, up to 7 counts and 5 steps.
     count_deg = 360 / 16384 / 80
     assert np.abs(f.arr("pos_deg") - q.arr("pos_deg")).max() <= 12 * count_deg
     assert np.abs(f.arr("vel_dps") - q.arr("vel_dps")).max() < 0.5

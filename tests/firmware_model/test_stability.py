@@ -55,3 +55,20 @@ def test_current_loop_check_matches_simulation_of_the_sampled_loop():
             i_hist.append(i)
         settled = abs(i_hist[-1] - 1.0) < 1e-6 and np.all(np.isfinite(i_hist))
         assert current_loop_stable(kp, ki, ts, 1) == settled, (kp, ki)
+
+
+@pytest.mark.parametrize(("factor", "stable"), [(8.0, True), (12.0, False)])
+def test_velocity_gain_edge_agrees_with_the_closed_loop(make_bench, factor, stable):
+    # Oracle: the closed loop on the test plant. x8 holds still, x12 rings at the clamp.
+    from firmware_model.params import VelocityLoopGains
+    from serial_protocol.messages import Move
+
+    gains = _defaults()
+    gains["kp_v"] *= factor
+    assert (unstable_reason(FirmwareParams(), gains) is None) == stable
+    params = FirmwareParams(velocity=VelocityLoopGains(kp_a_per_dps=gains["kp_v"]))
+    b = make_bench(params)
+    b.run(400, {5: [Move(cmd_id=1, target_deg=30.0, v_max_dps=200.0, a_max_dps2=1000.0)]})
+    current = b.arr("true_i_a")[250:, 0]
+    ringing = np.sqrt(np.mean(np.diff(current) ** 2))  # A per tick, rms
+    assert (ringing < 0.1) == stable
