@@ -91,10 +91,12 @@ def main(args: argparse.Namespace) -> int:
         endpoint.close()
         raise CommandError(f"cannot write {args.capture!r}: {exc.strerror}") from exc
     baud = bench.firmware.telemetry.baud
+    decimation = getattr(sim.fw, "telemetry_decimation", None)
     print(endpoint.address, flush=True)
     print(
         f"serving {args.bench} on {endpoint.address} (UART {baud} baud, paced by the "
-        f"simulator), speed {args.speed:g}x; Ctrl-C to stop",
+        f"simulator; telemetry every {decimation} tick(s)), speed {args.speed:g}x; "
+        "Ctrl-C to stop",
         file=sys.stderr,
         flush=True,
     )

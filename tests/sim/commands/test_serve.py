@@ -129,6 +129,7 @@ def test_serve_on_a_tcp_port():
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0 and "tcp:" in err
+    assert "telemetry every 2 tick(s)" in err  # the decimation is stated in the log
 
 
 def test_bad_overrides_are_command_errors():
