@@ -332,8 +332,9 @@ class Simulation:
     def step(self, n_ticks: int = 1) -> None:
         """Advance ``n_ticks`` servo ticks."""
         if self.batch is None:
+            step = self._step_scalar
             for _ in range(n_ticks):
-                self._step_scalar()
+                step()
         else:
             for _ in range(n_ticks):
                 self._step_batch()
@@ -377,7 +378,9 @@ class Simulation:
         if self._pc_out:
             n = rx.write(bytes(self._pc_out[: rx.free]))
             del self._pc_out[:n]
-        self._rx_for_board = rx.advance(self.dt_s)
+        # An empty RX line is idle (its advance would return nothing and change nothing):
+        # skip the call, the PC sends rarely.
+        self._rx_for_board = rx.advance(self.dt_s) if rx.pending else b""
         self._pc_in += self.uart_tx.advance(self.dt_s)
 
     def _step_scalar(self) -> None:
@@ -497,7 +500,8 @@ def run(
     cmd_id = 0
     nxt = 0
     every = max(1, n_ticks // 200)
-    for tick in range(n_ticks):
+    tick = 0
+    while tick < n_ticks:
         while nxt < len(schedule) and schedule[nxt][0] <= tick:
             cmd = schedule[nxt][1]
             cmd_id = (cmd_id + 1) & 0xFFFF
@@ -508,11 +512,16 @@ def run(
                 sim.pc_write(frame.encode(m, seq))
                 seq = (seq + 1) & 0xFF
             nxt += 1
-        sim.step()
-        if progress is not None and (tick + 1) % every == 0:
-            progress(tick + 1, n_ticks)
-    if progress is not None and n_ticks % every:
-        progress(n_ticks, n_ticks)
+        # Step in one call up to the next command or progress report.
+        stop = n_ticks
+        if nxt < len(schedule):
+            stop = min(stop, max(schedule[nxt][0], tick + 1))
+        if progress is not None:
+            stop = min(stop, (tick // every + 1) * every)
+        sim.step(stop - tick)
+        tick = stop
+        if progress is not None and (tick % every == 0 or tick == n_ticks):
+            progress(tick, n_ticks)
     counters = dict(getattr(sim.fw, "counters", {}))
     return RunResult(sim.log(), sim.pc_read(), sim.link_stats(), exp, counters)
 

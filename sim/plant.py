@@ -419,6 +419,9 @@ class ScalarPlant:
         self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
         self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
         self._g_max = 1.0 / (self.co.n * self.co.eta)
+        self._last_x: list[float] | None = None
+        self._last_mech = 0
+        self._end_key = 0
         self._splits = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
@@ -525,7 +528,17 @@ class ScalarPlant:
         """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state."""
         duty, enable = u
         self._splits = self.split_budget
-        return self._advance(x, duty, enable, self.key(x, duty, enable), 0)
+        co = self.co
+        if x is self._last_x and enable and -co.icl < x[0] < co.icl:
+            # The state this plant returned last: its mechanical mode is known; with the
+            # bridge on and below I_CL the bridge part is B_ON (0).
+            key = self._last_mech
+        else:
+            key = self.key(x, duty, enable)
+        xn = self._advance(x, duty, enable, key, 0)
+        self._last_x = xn
+        self._last_mech = self._end_key % 54
+        return xn
 
     def _advance(self, x: list[float], d: float, en: bool, key: int, level: int) -> list[float]:
         r0, r1, r2, r3, r4 = self.phi(key, level)
@@ -538,6 +551,7 @@ class ScalarPlant:
             r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6],
         ]
         key_end = self.key(xn, d, en)
+        self._end_key = key_end
         if key_end == key and (
             level >= self.event_levels
             or self._splits <= 0
