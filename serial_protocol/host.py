@@ -182,6 +182,24 @@ class BoardClient:
         msg = SetTelemetry(self.next_cmd_id(), decimation)
         return self.command(msg)  # type: ignore[return-value]
 
+    def wait_status(
+        self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05
+    ) -> Status | None:
+        """Ask for the status every ``interval_s`` (receiving telemetry in between) until
+        ``done(status)`` holds; return that status, or the last one after ``timeout_s`` of
+        wall time (None if none came)."""
+        end_wall_s = time.monotonic() + timeout_s
+        last: Status | None = None
+        while True:
+            reply = self.status()
+            if isinstance(reply, Status):
+                last = reply
+                if done(reply):
+                    return reply
+            if time.monotonic() >= end_wall_s:
+                return last
+            self.collect(interval_s)
+
     # ------------------------------------------------------------------ receiving
 
     def collect(self, duration_s: float) -> list[Message | Malformed]:

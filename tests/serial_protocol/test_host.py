@@ -132,6 +132,17 @@ def test_cmd_ids_are_fresh_and_skip_zero():
     assert [client.next_cmd_id() for _ in range(3)] == [0xFFFF, 1, 2]
 
 
+def test_wait_status_polls_until_done_or_timeout():
+    client = BoardClient(ScriptedBoard())
+    status = client.wait_status(lambda s: s.tick >= 3, timeout_s=5.0, interval_s=0.0)
+    assert status is not None and status.tick == 3
+    status = client.wait_status(lambda s: False, timeout_s=0.05, interval_s=0.01)
+    assert status is not None and status.tick > 3
+    silent = BoardClient(ScriptedBoard(lose=100), ack_timeout_s=0.001, retries=0)
+    with pytest.raises(LinkTimeout):
+        silent.wait_status(lambda s: True, timeout_s=0.01)
+
+
 def test_status_and_hello():
     client = BoardClient(ScriptedBoard())
     assert client.hello().tick_hz == 500

@@ -5,7 +5,6 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -39,13 +38,9 @@ def served():
 
 
 def _wait_status(client: BoardClient, done, timeout_wall_s: float) -> Status:
-    end_wall_s = time.monotonic() + timeout_wall_s
-    while True:
-        status = client.status()
-        assert isinstance(status, Status)
-        if done(status) or time.monotonic() > end_wall_s:
-            return status
-        client.collect(0.05)
+    status = client.wait_status(done, timeout_wall_s)
+    assert isinstance(status, Status)
+    return status
 
 
 def test_a_program_opens_the_pty_and_drives_a_move(served):
