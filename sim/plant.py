@@ -419,6 +419,8 @@ class ScalarPlant:
         self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
         self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
         self._g_max = 1.0 / (self.co.n * self.co.eta)
+        # BatchPlant turns this off for the members it hands over (batch semantics).
+        self.check_excursions = True
         self._last_x: list[float] | None = None
         self._last_mech = 0
         self._end_key = 0
@@ -555,6 +557,7 @@ class ScalarPlant:
         if key_end == key and (
             level >= self.event_levels
             or self._splits <= 0
+            or not self.check_excursions
             or not self._excursion(x, xn, key, self.h_s / (1 << level))
         ):
             return xn
@@ -589,7 +592,8 @@ class BatchPlant:
     enable (N,))``. Members whose mode stays the same over the step (almost all, almost
     always) share one matrix product per mode; the members that switch mode are halved
     again, vectorised (shared parameters), or by their own ``ScalarPlant`` (per-member
-    parameters). The Hermite excursion check of ``ScalarPlant`` is not run here.
+    parameters). The Hermite excursion check of ``ScalarPlant`` is not run in batch (it
+    would cost more than the step for N members).
     """
 
     def __init__(self, params: PlantParams, n: int, h_s: float, event_levels: int = 20) -> None:
@@ -605,6 +609,8 @@ class BatchPlant:
         else:
             shared = ScalarPlant(params, h_s, event_levels)
             self.members = [shared] * n
+        for plant in self.members:
+            plant.check_excursions = False  # not in the batch path (see the class docs)
         self._phi: dict[int, np.ndarray] = {}
         self.event_levels = int(event_levels)
         self.split_budget = 4 * self.event_levels + 8
