@@ -228,6 +228,8 @@ class Simulation:
             (anything with ``servo_tick``, ``current_tick`` and ``signals``).
         record_inputs: keep the ``(duty, enable)`` of every plant step (``inputs()``), e.g.
             to replay a run through ``solve_ivp``.
+        keep_log: keep the per-tick log (``log()``). A long-running server (``serve``)
+            passes False: the log grows by about 1 kB per tick (1.8 GB per hour at N = 1).
     """
 
     def __init__(
@@ -239,6 +241,7 @@ class Simulation:
         overrides: Mapping[str, Any] | None = None,
         firmware: Any = None,
         record_inputs: bool = False,
+        keep_log: bool = True,
     ) -> None:
         if overrides:
             bench = apply_overrides(bench, overrides)
@@ -288,6 +291,7 @@ class Simulation:
         self._rx_for_board = b""
         self.tick = 0
         self._record_inputs = record_inputs
+        self._keep_log = keep_log
         self._inputs: list[tuple[Any, Any]] = []
         if batch is None:
             # Per tick: the plant state at the sample, the firmware's signals, the bridge
@@ -341,6 +345,8 @@ class Simulation:
 
     def log(self) -> RunLog:
         """The log so far as numpy arrays (copies)."""
+        if not self._keep_log:
+            raise ValueError("keep_log = False: this Simulation keeps no log")
         if self.batch is None:
             n = len(self._xs)
             x = np.array(self._xs, dtype=float).reshape(n, 5)
@@ -387,7 +393,8 @@ class Simulation:
         fw = self.fw
         plant = self.plant
         x = self._x
-        self._xs.append(x)  # the plant state at the sampling instant (lists are not mutated)
+        if self._keep_log:
+            self._xs.append(x)  # the plant state at the sampling instant (never mutated)
         t = self.tick * self.dt_s
         counts = self.encoder.read(x)
         tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
@@ -416,8 +423,9 @@ class Simulation:
             t += self.h_s
         self._x = x
         self.tick += 1
-        self._sigs.append(fw.signals())
-        self._volts.append(self._duty * self._vs if self._enable else 0.0)
+        if self._keep_log:
+            self._sigs.append(fw.signals())
+            self._volts.append(self._duty * self._vs if self._enable else 0.0)
         self._move_bytes()
 
     def _grow(self) -> None:
@@ -438,16 +446,18 @@ class Simulation:
         plant = self.plant
         x = self._x
         k = self.tick
-        if k >= self._cap:
-            self._grow()
-        arrays = self._arrays
-        # Plant signals at the sampling instant, where the firmware sees them.
-        pos = x[:, 1]
-        arrays["true_pos_deg"][k] = pos * self._deg_per_rad_axis
-        arrays["true_vel_dps"][k] = x[:, VEL] * self._deg_per_rad_axis
-        arrays["platter_pos_deg"][k] = np.degrees(pos / self._n_total - x[:, TWIST])
-        arrays["motor_pos_rad"][k] = pos
-        arrays["current_a"][k] = x[:, I_A]
+        keep = self._keep_log
+        if keep:
+            if k >= self._cap:
+                self._grow()
+            arrays = self._arrays
+            # Plant signals at the sampling instant, where the firmware sees them.
+            pos = x[:, 1]
+            arrays["true_pos_deg"][k] = pos * self._deg_per_rad_axis
+            arrays["true_vel_dps"][k] = x[:, VEL] * self._deg_per_rad_axis
+            arrays["platter_pos_deg"][k] = np.degrees(pos / self._n_total - x[:, TWIST])
+            arrays["motor_pos_rad"][k] = pos
+            arrays["current_a"][k] = x[:, I_A]
         counts = self.encoder.read_batch(x)
         tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
         if tx:
@@ -470,10 +480,11 @@ class Simulation:
             x = plant.update(t, x, (self._duty, self._enable))
             t += self.h_s
         self._x = x
-        sig = fw.signals()
-        for f in FW_FIELDS:
-            arrays[f][k] = sig[f]
-        arrays["voltage_v"][k] = np.where(self._enable, self._duty * self._vs, 0.0)
+        if keep:
+            sig = fw.signals()
+            for f in FW_FIELDS:
+                arrays[f][k] = sig[f]
+            arrays["voltage_v"][k] = np.where(self._enable, self._duty * self._vs, 0.0)
         self.tick += 1
         self._move_bytes()
 

@@ -245,3 +245,19 @@ def test_a_trip_disables_the_bridge_and_the_motor_coasts_on_its_diodes(tmp_path)
     assert np.all(log.voltage_v[after] == 0.0)
     assert np.all(log.current_a[after] == 0.0)  # blocked by the diodes, not just small
     assert abs(log.true_vel_dps[-1]) < abs(log.true_vel_dps[k])  # coasting down
+
+
+def test_keep_log_false_keeps_nothing_but_runs_the_same(bench):
+    a = Simulation(bench, keep_log=False)
+    b = Simulation(bench)
+    for s in (a, b):
+        s.step(2)
+        s.pc_write(frame.encode(Move(1, 10.0, 300.0, 1000.0), 0))
+        s.step(200)
+    np.testing.assert_array_equal(a.plant_state, b.plant_state)
+    with pytest.raises(ValueError, match="keep_log"):
+        a.log()
+    for batch in (None, 2):
+        c = Simulation(bench, batch=batch, keep_log=False)
+        c.step(3)
+        assert c.tick == 3
