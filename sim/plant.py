@@ -228,6 +228,7 @@ def zoh_ladder(key: int, co: Coefficients, h_s: float, levels: int) -> list[np.n
 # Matrices shared by every plant with the same coefficients and step (tests and benchmarks
 # build many plants): (coefficients, h_s, levels, key) -> rows per level.
 _LADDERS: dict[tuple[Coefficients, float, int, int], list[tuple[tuple[float, ...], ...]]] = {}
+_LADDERS_MAX = 2000
 
 
 def ladder_rows(
@@ -237,6 +238,8 @@ def ladder_rows(
     slot = (co, h_s, levels, key)
     rows = _LADDERS.get(slot)
     if rows is None:
+        if len(_LADDERS) >= _LADDERS_MAX:
+            _LADDERS.clear()  # bounded: ~26 kB per entry; plants keep their own copies
         rows = [
             tuple(tuple(float(v) for v in row) for row in mat)
             for mat in zoh_ladder(key, co, h_s, levels)
