@@ -195,3 +195,32 @@ def test_frames_are_logged_with_python_can_writers(tmp_path, suffix):
     reassembler = CanReassembler()
     replayed = [reassembler.feed(f.arbitration_id, bytes(f.data)) for f in logged]
     assert [m for m in replayed if m is not None] == [*msgs, GetStatus(99)]
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.booleans(), min_size=40, max_size=160), st.integers(0, 7))
+def test_lost_frames_never_yield_a_wrong_message(keep, first_counter):
+    msgs = [
+        Telemetry(k, k / 4, 1.0, -k / 8, 2.0, 0.5, 0.25, State.MOVING, Fault.NONE)
+        if k % 3
+        else Status(k, k, State.MOVING, Fault.NONE, k / 2, 1.0, 3.0)
+        for k in range(40)
+    ]
+    counters = {}
+    frames = []
+    for msg in msgs:
+        counter = counters.get(msg.MSG_TYPE, first_counter)
+        frames += [(msg, f) for f in can_frames(msg, counter)]
+        counters[msg.MSG_TYPE] = (counter + 1) & 7
+    reassembler = CanReassembler()
+    got = []
+    for k, (_msg, (frame_id, data)) in enumerate(frames):
+        if keep[k % len(keep)] or k % 7 == 0:  # drop frames, but never 8 transfers in a row
+            out = reassembler.feed(frame_id, data)
+            if out is not None:
+                got.append(out)
+    complete = [
+        m for m in msgs
+        if all(keep[k % len(keep)] or k % 7 == 0 for k, (src, _) in enumerate(frames) if src is m)
+    ]  # fmt: skip
+    assert got == complete
