@@ -9,7 +9,8 @@ boundary"):
    the PC, which go into the board's TX FIFO,
 3. ``current_loop_multiple`` times: the ADC reads the IS pin of the present current, then
    ``fw.current_tick(adc_counts)`` gives ``(duty, enable)`` (the firmware applies its own
-   compute delay), then the plant advances ``dt / multiple`` with that input held,
+   compute delay), the bridge rounds the duty to the timer's 1/ARR steps, then the plant
+   advances ``dt / multiple`` with that input held,
 4. the log row is written,
 5. both UART directions move the bytes of one tick: PC -> board bytes arrive for the next
    servo tick, board -> PC bytes are buffered for ``pc_read()``.
@@ -34,7 +35,7 @@ from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection
-from sim.bridge import adc_counts
+from sim.bridge import adc_counts, quantise_duty, sensed_current_a
 from sim.config import TABLES, BenchConfig, Experiment
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams
@@ -271,6 +272,8 @@ class Simulation:
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
         self._adc_noise = plant.current_sense.noise_rms_lsb
         self._vs = plant.supply.voltage_v
+        self._bridge = plant.bridge
+        self._arr = float(np.asarray(plant.bridge.arr).flat[0])
         self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
         self._n_total = plant.total_ratio
         if batch is None:
@@ -401,6 +404,7 @@ class Simulation:
         if tx:
             self.uart_tx.write(tx)
         a_per_lsb = self._a_per_lsb
+        arr = self._arr
         for _ in range(self.multiple):
             d = self._duty
             i = x[I_A]
@@ -414,7 +418,9 @@ class Simulation:
                 c += self._adc_noise * self._rng.standard_normal()
             adc = min(max(math.floor(c), 0), self._adc_full)
             duty, enable = fw.current_tick(adc)
-            d = float(duty)
+            # The timer can only produce whole compare steps (idempotent for a firmware
+            # that already quantises).
+            d = round(min(max(float(duty), -1.0), 1.0) * arr) / arr
             en = bool(enable)
             self._duty, self._enable = d, en
             if self._record_inputs:
@@ -464,7 +470,7 @@ class Simulation:
             self.uart_tx.write(tx)
         t = k * self.dt_s
         for _ in range(self.multiple):
-            sensed = np.where(self._enable, np.maximum(0.0, np.sign(self._duty) * x[:, I_A]), 0.0)
+            sensed = sensed_current_a(x[:, I_A], self._duty, self._enable)
             noise = (
                 self._adc_noise * self._rng.standard_normal(self.batch)
                 if np.any(self._adc_noise)
@@ -472,8 +478,8 @@ class Simulation:
             )
             adc = adc_counts(sensed, self._sense, noise)
             duty, enable = fw.current_tick(adc)
-            # Copies: the firmware may reuse its output arrays.
-            self._duty = np.array(duty, dtype=float)
+            # Copies (the firmware may reuse its output arrays), on the timer's steps.
+            self._duty = quantise_duty(np.array(duty, dtype=float), self._bridge)
             self._enable = np.array(enable, dtype=bool)
             if self._record_inputs:
                 self._inputs.append((self._duty.copy(), self._enable.copy()))

@@ -720,13 +720,3 @@ class BatchPlant:
         xm = self._events(x[moved], d, e, keys[moved], 1)
         xn[moved] = self._events(xm, d, e, mode_keys(xm, d, e, self.co), 1)
         return xn
-
-
-def motor_to_axis_deg(motor_pos_rad: Any, params: PlantParams) -> Any:
-    """Axis (gearmotor output) angle in degrees from the motor angle."""
-    return np.degrees(motor_pos_rad) / params.gearbox.ratio
-
-
-def platter_pos_rad(x: np.ndarray, params: PlantParams) -> Any:
-    """Platter angle (rad) from a state (5,) or (N, 5)."""
-    return x[..., POS] / params.total_ratio - x[..., TWIST]

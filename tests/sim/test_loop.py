@@ -261,3 +261,31 @@ def test_keep_log_false_keeps_nothing_but_runs_the_same(bench):
         c = Simulation(bench, batch=batch, keep_log=False)
         c.step(3)
         assert c.tick == 3
+
+
+def test_bridge_applies_only_whole_timer_steps(bench):
+    class Raw(_BangBang):
+        def current_tick(self, adc):
+            return 0.123456789, True
+
+    sim = Simulation(bench, firmware=Raw(), record_inputs=True)
+    sim.step(2)
+    duty, _ = sim.inputs()
+    np.testing.assert_array_equal(duty, [444 / 3600, 444 / 3600])
+    batch = Simulation(
+        bench,
+        batch=2,
+        firmware=type(
+            "B",
+            (Raw,),
+            {
+                "current_tick": lambda self, adc: (
+                    np.array([0.123456789, -2.0]),
+                    np.array([True] * 2),
+                )
+            },
+        )(),
+        record_inputs=True,
+    )
+    batch.step(1)
+    np.testing.assert_allclose(batch.inputs()[0], [[444 / 3600, -1.0]])
