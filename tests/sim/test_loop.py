@@ -289,3 +289,14 @@ def test_bridge_applies_only_whole_timer_steps(bench):
     )
     batch.step(1)
     np.testing.assert_allclose(batch.inputs()[0], [[444 / 3600, -1.0]])
+
+
+def test_current_loop_multiple_steps_the_plant_that_many_times_per_tick(bench):
+    sim = Simulation(bench, overrides={"servo.current_loop_multiple": 2}, record_inputs=True)
+    assert sim.h_s == pytest.approx(0.001)
+    sim.step(2)
+    sim.pc_write(frame.encode(Move(1, 90.0, 300.0, 1000.0), 0))
+    sim.step(748)
+    duty, _ = sim.inputs()
+    assert len(duty) == 2 * 750
+    assert sim.log().pos_deg[-1] == pytest.approx(90.0, abs=0.1)
