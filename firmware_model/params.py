@@ -272,9 +272,11 @@ class EstimatorParams(_Checked):
     an acceleration disturbance (friction, load), all three poles at
     ``exp(-bandwidth_rad_s * dt_s)``.
 
-    ``accel_per_amp_dps2`` (nominal Kt / J in axis deg/s^2 per A; 0 = off) feeds the sensed
-    current into the prediction as a known acceleration, so that the estimate does not lag
-    behind a current step; the disturbance state absorbs what the model gets wrong.
+    ``accel_per_amp_dps2`` (nominal Kt / J in axis deg/s^2 per A; 0 = off) feeds the
+    current of the period that just ended (the reference of the duty applied in it plus the
+    model error seen at the last ADC sample) into the prediction as a known acceleration, so
+    that the estimate does not lag behind a current step; the disturbance state absorbs what
+    the model gets wrong.
     """
 
     bandwidth_rad_s: float = _f(_DEFAULTS["estimator.bandwidth_rad_s"], _rng(1.0, 5000.0))

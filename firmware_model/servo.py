@@ -18,7 +18,8 @@ The order of one servo tick (seed 000 Fig. 5), with the firmware's shell around 
 1. :meth:`estimate`: unwrap the 14-bit reading around the observer's *prediction* (so the
    motor may turn more than half a revolution per tick as long as the prediction is within
    half a revolution), then a third-order observer (position, velocity, acceleration
-   disturbance; the sensed current as a known acceleration) gives the velocity; the plain
+   disturbance; the current of the period that just ended as a known acceleration) gives
+   the velocity; the plain
    difference is kept as ``vel_raw_dps``.
 2. :meth:`servo`: position error -> ``v_ref = Kp_pos e + vel_ff sp_vel`` clamped to the velocity
    limit -> ``i_ref = Kp_vel (v_ref - vel) + I + acc_ff sp_acc`` clamped to the current limit,

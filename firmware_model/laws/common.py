@@ -51,7 +51,7 @@ class LawBase:
         self.delay = servo.compute_delay_ticks
         self.k_pos, self.k_vel, self.k_dist = params.estimator.observer_gains(servo.dt_s)
         self.dps_per_count_tick = AXIS_DEG_PER_COUNT * servo.tick_hz
-        # Counts per tick^2 of acceleration per ampere of sensed current (observer input).
+        # Counts per tick^2 of acceleration per ampere of motor current (observer input).
         self.counts_tick2_per_a = (
             params.estimator.accel_per_amp_dps2 * servo.dt_s**2 / AXIS_DEG_PER_COUNT
         )
