@@ -88,9 +88,19 @@ def main(args: argparse.Namespace) -> int:
 
     from serial_protocol.exceptions import CommandError, LinkTimeout
     from serial_protocol.host import BoardClient
-    from serial_protocol.messages import FaultReport, Malformed, Nack, Telemetry
+    from serial_protocol.messages import (
+        PROTOCOL_VERSION,
+        FaultReport,
+        Malformed,
+        Nack,
+        Telemetry,
+    )
     from serial_protocol.telemetry_csv import TelemetryCsvWriter
 
+    if not args.ack_timeout > 0 or args.retries < 0:
+        raise CommandError(
+            f"--ack-timeout {args.ack_timeout!r} must be > 0 and --retries {args.retries!r} >= 0"
+        )
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))
@@ -117,12 +127,17 @@ def main(args: argparse.Namespace) -> int:
             hello = client.hello()
         except LinkTimeout as exc:
             raise CommandError(f"no board answers on {args.url}: {exc}") from exc
-        if writer is not None:
+        if writer is not None and hello.tick_hz > 0:
             writer.tick_hz = float(hello.tick_hz)
         status.say(
             f"connected to {args.url}: protocol {hello.protocol_version}, firmware "
             f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}, {hello.tick_hz} Hz"
         )
+        if hello.protocol_version != PROTOCOL_VERSION:
+            status.say(
+                f"warning: the board speaks protocol {hello.protocol_version}, this tool "
+                f"{PROTOCOL_VERSION}"
+            )
 
         def run(label: str, call: Callable[[], Any]) -> None:
             reply = call()

@@ -117,6 +117,11 @@ def test_monitor_without_a_board_fails_cleanly():
     server.close()
 
 
+def test_bad_timeouts_are_command_errors():
+    with pytest.raises(CommandError, match="ack-timeout"):
+        run_monitor(["loop://", "--ack-timeout", "0"])
+
+
 class RecordingClient:
     def __getattr__(self, name):
         return lambda *a, **k: (name, a, k)
