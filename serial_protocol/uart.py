@@ -232,6 +232,8 @@ class EmulatedUart:
     def advance(self, dt_s: float) -> bytes:
         """Shift out the bytes the line carries in ``dt_s`` simulated seconds and return
         what reaches the far end (after fault injection)."""
+        if not dt_s >= 0.0:
+            raise ValueError(f"dt_s = {dt_s!r}: must be >= 0")
         fifo = self._fifo
         # snapped to 1e-9 byte so that float error cannot accumulate over millions of ticks
         # (23.04 bytes per 2 ms at 115200 baud must give exactly 23040 bytes per second)

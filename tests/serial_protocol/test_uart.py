@@ -101,6 +101,15 @@ def test_bad_arguments_raise(kwargs, match):
         EmulatedUart(**kwargs)
 
 
+@pytest.mark.parametrize("dt_s", [-0.002, float("nan")])
+def test_advance_refuses_negative_or_nan_time(dt_s):
+    uart = EmulatedUart(baud=115200, fifo_bytes=64)
+    uart.write(bytes(10))
+    with pytest.raises(ValueError, match="dt_s"):
+        uart.advance(dt_s)
+    assert uart.pending == 10
+
+
 def test_fault_injection_checks_its_rates():
     with pytest.raises(ValueError, match="drop_rate"):
         FaultInjection(drop_rate=1.5)
