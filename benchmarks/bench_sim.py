@@ -84,12 +84,15 @@ def time_run(exp: Experiment, batch: int | None, repeat: int) -> list[float]:
     return walls
 
 
-def quietest_chunks(exp: Experiment, chunk: int = 100) -> tuple[float, float]:
-    """Step the N = 1 experiment in chunks of ``chunk`` ticks: (quietest, median) us/tick.
+def quietest_chunks(
+    exp: Experiment, chunk: int = 100, batch: int | None = None
+) -> tuple[float, float]:
+    """Step the experiment in chunks of ``chunk`` ticks: (quietest, median) us/tick.
     On a shared machine the quietest chunk is the closest to the code's own cost."""
     from serial_protocol import frame
 
-    sim = Simulation(exp.bench, seed=0)
+    sim = Simulation(exp.bench, seed=0, batch=batch)
+    sim.reserve(round(exp.duration_s / exp.bench.dt_s))
     n = round(exp.duration_s / exp.bench.dt_s)
     at = {round(c.t_s / exp.bench.dt_s): c for c in exp.commands}
     per = []
@@ -188,6 +191,12 @@ def main() -> None:
     print(
         f"    {ticks / med:,.0f} controller ticks/s median ({ticks / best:,.0f} best), "
         "target 2,000,000"
+    )
+
+    q, m = quietest_chunks(expb, chunk=20, batch=args.batch)
+    print(
+        f"    stepped in chunks of 20 ticks: quietest chunk {args.batch / q * 1e6:,.0f} "
+        f"ticks/s, median chunk {args.batch / m * 1e6:,.0f} ticks/s"
     )
 
     r = loop_ivp_vs_zoh(exp20, args.ivp_s)

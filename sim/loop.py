@@ -434,18 +434,23 @@ class Simulation:
             self._volts.append(self._duty * self._vs if self._enable else 0.0)
         self._move_bytes()
 
-    def _grow(self) -> None:
-        cap = max(1024, 2 * self._cap)
+    def _grow(self, min_cap: int = 0) -> None:
+        cap = max(1024, 2 * self._cap, min_cap)
         n = self.batch
         for f in LOG_FIELDS:
             if f == "t_s":
                 continue
             dtype = np.int64 if f in _INT_FIELDS else float
-            new = np.zeros((cap, n), dtype=dtype)  # row per tick: contiguous writes
+            new = np.empty((cap, n), dtype=dtype)  # row per tick: contiguous writes
             if f in self._arrays:
-                new[: self._cap] = self._arrays[f]
+                new[: self._cap] = self._arrays[f][: self._cap]
             self._arrays[f] = new
         self._cap = cap
+
+    def reserve(self, n_ticks: int) -> None:
+        """Make room for ``n_ticks`` more log rows at once (batch; ``run`` calls it)."""
+        if self.batch is not None and self._keep_log and self.tick + n_ticks > self._cap:
+            self._grow(self.tick + n_ticks)
 
     def _step_batch(self) -> None:
         fw = self.fw
@@ -517,6 +522,7 @@ def run(
     cmd_id = 0
     nxt = 0
     every = max(1, n_ticks // 200)
+    sim.reserve(n_ticks)
     tick = 0
     while tick < n_ticks:
         while nxt < len(schedule) and schedule[nxt][0] <= tick:
