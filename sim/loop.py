@@ -15,9 +15,10 @@ boundary"):
 5. both UART directions move the bytes of one tick: PC -> board bytes arrive for the next
    servo tick, board -> PC bytes are buffered for ``pc_read()``.
 
-The N = 1 path works on plain Python floats and appends to lists (about one list append per
-logged signal per tick); the batch path (``batch=N``) keeps ``(N, 5)`` arrays and writes
-into preallocated ``(N, capacity)`` log arrays. The scripted PC of ``run`` writes its frames
+The N = 1 path works on plain Python floats and appends three items per tick to lists (the
+plant state, the firmware's signals dict, the bridge voltage), turned into columns by
+``log()``; the batch path (``batch=N``) keeps ``(N, 5)`` arrays and writes rows of
+preallocated ``(capacity, N)`` log arrays. The scripted PC of ``run`` writes its frames
 with ``pc_write`` at their times, exactly as a PC program would.
 """
 
@@ -27,6 +28,8 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from itertools import chain
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -305,7 +308,6 @@ class Simulation:
         else:
             self._cap = 0
             self._arrays: dict[str, np.ndarray] = {}
-            self._t: list[float] = []
 
     # ---------------------------------------------------------------- public API
     @property
@@ -352,12 +354,15 @@ class Simulation:
             raise ValueError("keep_log = False: this Simulation keeps no log")
         if self.batch is None:
             n = len(self._xs)
-            x = np.array(self._xs, dtype=float).reshape(n, 5)
+            # fromiter over the flattened rows: several times faster than np.array(list).
+            x = np.fromiter(chain.from_iterable(self._xs), dtype=float, count=5 * n)
+            x = x.reshape(n, 5)
+            k = len(FW_FIELDS)
+            rows = chain.from_iterable(map(itemgetter(*FW_FIELDS), self._sigs))
+            table = np.fromiter(rows, dtype=float, count=k * n).reshape(n, k)
             cols = {
-                f: np.array(
-                    [s[f] for s in self._sigs], dtype=np.int64 if f in _INT_FIELDS else float
-                )
-                for f in FW_FIELDS
+                f: table[:, j].astype(np.int64) if f in _INT_FIELDS else table[:, j].copy()
+                for j, f in enumerate(FW_FIELDS)
             }
             cols["t_s"] = np.arange(n) * self.dt_s
             cols["true_pos_deg"] = x[:, 1] * self._deg_per_rad_axis
