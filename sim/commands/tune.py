@@ -98,7 +98,10 @@ def main(args: argparse.Namespace) -> int:
         sets["relay"] = relay.gains
 
     with Progress("tune", generations(settings), enabled=not args.quiet) as bar:
-        result = tune(scenarios, start, settings, on_generation=bar.advance)
+        baselines_found = [g for k, g in sets.items() if k != "config"]
+        result = tune(
+            scenarios, start, settings, on_generation=bar.advance, extra_starts=baselines_found
+        )
     sets["tuned"] = result.gains
 
     # The comparison: every gain set in one batch, logs kept for the plots.

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import differential_evolution
+from scipy.stats import qmc
 
 from sim.config import Experiment
 from sim.tuning import linear
@@ -99,10 +100,24 @@ def _stage(
     settings: TuneSettings,
     seed: int,
     on_generation: Callable[[], None] | None,
+    extra_starts: Sequence[GainSet] = (),
 ) -> StageResult:
     names = [f for loop in loops for f in LOOP_FIELDS[loop]]
-    centre = np.array([math.log10(max(getattr(start, n), 1e-12)) for n in names])
+
+    def log_gains(g: GainSet) -> np.ndarray:
+        return np.array([math.log10(max(getattr(g, n), 1e-12)) for n in names])
+
+    centre = log_gains(start)
     half = math.log10(settings.bound_factor)
+    lo, hi = centre - half, centre + half
+    # The initial population: a Latin hypercube over the box, its first member the start
+    # gains, the next ones the extra starts (baselines) clipped into the box.
+    size = max(5, settings.popsize * len(names))  # scipy needs more than 4 members
+    unit = qmc.LatinHypercube(d=len(names), seed=seed).random(size)
+    init = lo + unit * (hi - lo)
+    init[0] = centre
+    for k, g in enumerate(extra_starts[: size - 1], start=1):
+        init[k] = np.clip(log_gains(g), lo, hi)
     bench = scenarios[0].bench
     record: dict = {"simulated": 0, "refused": 0, "best": [], "best_x": None}
     record.update(best_cost=math.inf, start_cost=math.nan)
@@ -128,7 +143,7 @@ def _stage(
             record["simulated"] += len(ok)
         for k in range(xs.shape[1]):
             if np.array_equal(xs[:, k], centre):
-                record["start_cost"] = float(cost[k])  # x0: the first member of generation 0
+                record["start_cost"] = float(cost[k])  # the first member of generation 0
         k_best = int(np.argmin(cost))
         if cost[k_best] < record["best_cost"]:
             record["best_cost"] = float(cost[k_best])
@@ -140,18 +155,17 @@ def _stage(
 
     differential_evolution(
         objective,
-        bounds=[(c - half, c + half) for c in centre],
-        x0=centre,
+        bounds=list(zip(lo, hi, strict=True)),
         popsize=settings.popsize,
         maxiter=settings.maxiter,
         tol=0.0,
         seed=seed,
-        init="sobol",
+        init=init,
         polish=False,
         vectorized=True,
         updating="deferred",
     )
-    if math.isnan(record["start_cost"]):  # x0 not met exactly (scipy clips to the bounds)
+    if math.isnan(record["start_cost"]):  # not met exactly in generation 0
         objective(centre[:, None])
     start_cost = record["start_cost"]
     best = candidate(record["best_x"]) if record["best_cost"] < start_cost else start
@@ -179,14 +193,18 @@ def tune(
     settings: TuneSettings,
     *,
     on_generation: Callable[[], None] | None = None,
+    extra_starts: Sequence[GainSet] = (),
 ) -> TuneResult:
     """Tune ``start`` on ``scenarios``; the start gains must pass the linear gate's
-    stability check (``linear.check_gains``)."""
+    stability check (``linear.check_gains``). ``extra_starts`` (e.g. the baselines) join
+    each stage's initial population, their gains of that stage clipped into the box."""
     linear.check_gains(scenarios[0].bench, start, "tune start gains")
     gains = start
     stages = []
     for loops in settings.stages():
-        result = _stage(scenarios, gains, loops, settings, settings.seed, on_generation)
+        result = _stage(
+            scenarios, gains, loops, settings, settings.seed, on_generation, extra_starts
+        )
         stages.append(result)
         gains = result.gains
     return TuneResult(start=start, gains=gains, stages=tuple(stages))

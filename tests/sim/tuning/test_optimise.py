@@ -69,3 +69,14 @@ def test_start_cost_is_the_config_gains_cost(bench, short_move, tuned):
         # Same gains, same seed, another batch size: the noise draws differ.
         assert stage.start_cost == pytest.approx(float(ev.cost[0]), rel=0.5)
     assert stage.cost <= stage.start_cost
+
+
+def test_extra_starts_join_the_initial_population(bench, short_move, tuned):
+    """With no generation after the initial one, a tune seeded with good gains ends at
+    least about as good as them: they were in its population."""
+    start = GainSet.from_bench(bench)
+    settings = TuneSettings(seed=5, popsize=2, maxiter=0, bound_factor=12.0)
+    seeded = tune([short_move], start, settings, extra_starts=[tuned.gains])
+    ev = evaluate([short_move], [seeded.gains, tuned.gains, start], weights=CostWeights(), seed=7)
+    assert ev.cost[0] < 0.8 * ev.cost[2]
+    assert ev.cost[0] < 1.25 * ev.cost[1]
