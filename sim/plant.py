@@ -498,7 +498,13 @@ class ScalarPlant:
         i1, _, w1, t1, p1 = xn
         r0 = w0 * co.inv_n - p0
         r1 = w1 * co.inv_n - p1
-        if _hermite_leaves(t0, t1, r0 * h, r1 * h, co.half):
+        # Twist: the distance gate of _hermite_leaves inlined (it almost always holds).
+        reach = (abs(r0) + abs(r1)) * h + abs(t1 - t0)
+        d0 = abs(t0) - co.half
+        d1 = abs(t1) - co.half
+        if not ((d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach)) and (
+            _hermite_leaves(t0, t1, r0 * h, r1 * h, co.half)
+        ):
             return True
         aw0, aw1 = abs(w0), abs(w1)
         wmax = aw0 if aw0 > aw1 else aw1
@@ -546,7 +552,8 @@ class ScalarPlant:
         return xn
 
     def _advance(self, x: list[float], d: float, en: bool, key: int, level: int) -> list[float]:
-        r0, r1, r2, r3, r4 = self.phi(key, level)
+        rows = self._phi.get(key * 64 + level)
+        r0, r1, r2, r3, r4 = rows if rows is not None else self.phi(key, level)
         i, p, w, tw, wp = x
         xn = [
             r0[0] * i + r0[2] * w + r0[3] * tw + r0[4] * wp + r0[5] * d + r0[6],
