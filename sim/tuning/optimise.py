@@ -142,7 +142,7 @@ def _stage(
             cost[ok] = np.minimum(ev.cost, PENALTY)
             record["simulated"] += len(ok)
         for k in range(xs.shape[1]):
-            if np.array_equal(xs[:, k], centre):
+            if np.allclose(xs[:, k], centre, rtol=0.0, atol=1e-12):
                 record["start_cost"] = float(cost[k])  # the first member of generation 0
         k_best = int(np.argmin(cost))
         if cost[k_best] < record["best_cost"]:
