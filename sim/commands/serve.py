@@ -73,7 +73,10 @@ def main(args: argparse.Namespace) -> int:
 
     if not args.speed > 0:
         raise CommandError(f"--speed {args.speed!r}: must be > 0")
-    sim = Simulation(load_bench(args.bench), seed=args.seed, overrides=_overrides(args))
+    # keep_log=False: a server runs for hours; the per-tick log would grow ~1.8 GB an hour.
+    sim = Simulation(
+        load_bench(args.bench), seed=args.seed, overrides=_overrides(args), keep_log=False
+    )
     bench = sim.bench
     dt_s = sim.dt_s
     end_tick = None if args.duration is None else round(args.duration / dt_s)
