@@ -28,6 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="turntable-sim",
         description="Firmware-in-the-loop simulator of the seed-000 servo turntable.",
+        # Wide enough that the longest command name keeps its help on the same line.
+        formatter_class=lambda prog: argparse.HelpFormatter(prog, max_help_position=32),
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
