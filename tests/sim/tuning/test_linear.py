@@ -14,7 +14,7 @@ from firmware_model.firmware import Firmware
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Ack, Loop, Nack, NackCode
 from sim.config import Experiment, ScriptedCommand
-from sim.loop import run
+from sim.loop import apply_overrides, run
 from sim.tuning import linear
 from sim.tuning.cost import CostWeights
 from sim.tuning.evaluate import evaluate
@@ -71,20 +71,27 @@ def test_response_and_margins_agree_with_scipy_signal(bench, loop):
     assert np.max(np.abs(poles)) == pytest.approx(m.spectral_radius, rel=1e-6)
 
 
-def test_current_loop_matches_the_hand_derived_polynomial(bench):
+@pytest.mark.parametrize("multiple", [1, 2, 4])
+def test_current_loop_matches_the_hand_derived_polynomial(bench, multiple):
     # PI Kp + Ki Ts / (z - 1), one period of compute delay, the armature sampled with a
     # hold: i(z) / u(z) = (1 - a) / R / (z - a), a = exp(-R Ts / L). Closed loop:
     # z (z - 1) (z - a) + (1 - a) / R (Kp (z - 1) + Ki Ts) = 0.
+    bench = apply_overrides(bench, {"servo.current_loop_multiple": multiple})
+    dt_s = DT_S / multiple  # the current loop runs `multiple` times per servo tick
     gains = GainSet.from_bench(bench)
     plant = linear.LinearPlant.from_bench(bench)
-    a = math.exp(-plant.r_ohm * DT_S / plant.l_h)
+    a = math.exp(-plant.r_ohm * dt_s / plant.l_h)
     g = (1.0 - a) / plant.r_ohm
     poly = np.polymul([1.0, 0.0], np.polymul([1.0, -1.0], [1.0, -a]))
     poly = np.polyadd(
-        poly, g * np.array([gains.kp_i_v_per_a, gains.ki_i_v_per_as * DT_S - gains.kp_i_v_per_a])
+        poly, g * np.array([gains.kp_i_v_per_a, gains.ki_i_v_per_as * dt_s - gains.kp_i_v_per_a])
     )
     rho = np.max(np.abs(np.roots(poly)))
-    assert loop_transfer(bench, gains, "current").spectral_radius() == pytest.approx(rho, rel=1e-9)
+    lt = loop_transfer(bench, gains, "current")
+    assert lt.dt_s == pytest.approx(dt_s)
+    assert lt.spectral_radius() == pytest.approx(rho, rel=1e-9)
+    # The servo-rate models run the current loop `multiple` times per tick and stay stable.
+    assert all(m.stable for m in linear.analyse(bench, gains).values())
 
 
 def test_check_gains_refuses_unstable_with_the_source_and_reason(bench):

@@ -80,3 +80,13 @@ def test_extra_starts_join_the_initial_population(bench, short_move, tuned):
     ev = evaluate([short_move], [seeded.gains, tuned.gains, start], weights=CostWeights(), seed=7)
     assert ev.cost[0] < 0.8 * ev.cost[2]
     assert ev.cost[0] < 1.25 * ev.cost[1]
+
+
+def test_scenarios_add_up(bench, short_move):
+    """Two scenarios: each term is the sum over them (here the same run twice)."""
+    gains = [GainSet.from_bench(bench)]
+    one = evaluate([short_move], gains, weights=CostWeights(), seed=4)
+    two = evaluate([short_move, short_move], gains, weights=CostWeights(), seed=4)
+    for name, value in one.terms.items():
+        assert two.terms[name] == pytest.approx(2 * value, rel=1e-12, abs=1e-15)
+    assert two.cost == pytest.approx(2 * one.cost)
