@@ -13,7 +13,7 @@ from typing import Any
 
 from sim.config import BenchConfig
 
-__all__ = ["GAIN_FIELDS", "GainSet", "LOOP_FIELDS"]
+__all__ = ["GAIN_FIELDS", "GainSet", "LOOP_FIELDS", "batch_overrides"]
 
 #: GainSet field -> dotted ``table.key`` of the bench (``sim.loop.apply_overrides``).
 GAIN_FIELDS: dict[str, str] = {

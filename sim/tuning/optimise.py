@@ -30,7 +30,7 @@ from sim.tuning.cost import CostWeights
 from sim.tuning.evaluate import evaluate
 from sim.tuning.gains import LOOP_FIELDS, GainSet
 
-__all__ = ["PENALTY", "StageResult", "TuneSettings", "TuneResult", "tune"]
+__all__ = ["PENALTY", "StageResult", "TuneResult", "TuneSettings", "generations", "tune"]
 
 #: Cost given to a refused candidate (plus one per reason), far above any simulated cost.
 PENALTY = 1.0e6

@@ -13,7 +13,13 @@ from sim.tuning.cost import TERMS
 from sim.tuning.gains import GAIN_FIELDS, GainSet
 from sim.tuning.linear import Margins
 
-__all__ = ["margins_table", "terms_table", "tuned_toml_text"]
+__all__ = [
+    "gains_table",
+    "margins_table",
+    "terms_table",
+    "tuned_toml_text",
+    "write_tuned_toml",
+]
 
 
 def tuned_toml_text(source_text: str, gains: GainSet, note: str) -> str:
