@@ -90,12 +90,16 @@ def main(args: argparse.Namespace) -> int:
     if not args.no_relay:
         from sim.tuning.relay import relay_tune
 
-        relay = relay_tune(bench, start, seed=args.seed)
-        log(
-            f"relay: Ku = {relay.ku_a_per_dps:.4g} A/(deg/s), Tu = {relay.tu_s * 1e3:.1f} ms "
-            f"({relay.cycles} cycles)"
-        )
-        sets["relay"] = relay.gains
+        try:
+            relay = relay_tune(bench, start, seed=args.seed)
+        except ValueError as exc:  # no sustained oscillation on this bench
+            log(f"relay: skipped ({exc})")
+        else:
+            log(
+                f"relay: Ku = {relay.ku_a_per_dps:.4g} A/(deg/s), "
+                f"Tu = {relay.tu_s * 1e3:.1f} ms ({relay.cycles} cycles)"
+            )
+            sets["relay"] = relay.gains
 
     with Progress("tune", generations(settings), enabled=not args.quiet) as bar:
         baselines_found = [g for k, g in sets.items() if k != "config"]

@@ -43,3 +43,9 @@ def test_relay_finds_the_phase_crossover_of_the_velocity_loop(bench):
     assert result.cycles >= 10
     assert result.gains.kp_v_a_per_dps == pytest.approx(0.45 * result.ku_a_per_dps)
     assert result.gains.kp_i_v_per_a == start.kp_i_v_per_a
+
+
+def test_relay_without_oscillation_says_so(bench):
+    # A relay of 1 mA cannot overcome the friction: the speed never crosses the setpoint.
+    with pytest.raises(ValueError, match="no oscillation"):
+        relay_tune(bench, GainSet.from_bench(bench), amp_a=0.001, duration_s=0.3)
