@@ -594,16 +594,66 @@ class ScalarPlant:
 # Below this many switching members, BatchPlant hands them to the scalar recursion.
 _SCALAR_EVENTS = 8
 
+# The boundary columns of BatchPlant's fused step: for the end state, 14 linear functions
+# whose signs (> 0) give its mechanical mode while the bridge is on: the motor and platter
+# speeds against their friction bands, the twist against the backlash gap, the belt torque
+# on either side of the gap and the motor speed (power flow), and I_CL - |i| (both signs).
+_N_BOUNDS = 14
+
+
+def _boundary_columns(co: Coefficients) -> tuple[np.ndarray, np.ndarray]:
+    """``(C (..., 5, 14), c0 (..., 14))``: the boundary columns are ``x @ C + c0``."""
+    shape = np.broadcast(co.wbm, co.wbp, co.half, co.k, co.c, co.icl).shape
+    c = np.zeros(shape + (N_X, _N_BOUNDS))
+    c0 = np.zeros(shape + (_N_BOUNDS,))
+    for sign, col in ((1.0, 0), (-1.0, 1)):
+        c[..., VEL, col] = sign
+        c0[..., col] = -co.wbm
+        c[..., PVEL, col + 2] = sign
+        c0[..., col + 2] = -co.wbp
+        c[..., TWIST, col + 4] = sign
+        c0[..., col + 4] = -co.half
+        for side, base in ((1.0, 6), (-1.0, 8)):  # belt torque in contact on either side
+            c[..., TWIST, base + col] = sign * co.k
+            c[..., VEL, base + col] = sign * co.c * co.inv_n
+            c[..., PVEL, base + col] = -sign * co.c
+            c0[..., base + col] = -sign * co.k * co.half * side
+        c[..., VEL, col + 10] = sign
+        c[..., I_A, col + 12] = sign
+        c0[..., col + 12] = co.icl
+    return c, c0
+
+
+def _key_of_signs() -> np.ndarray:
+    """Mode key (bridge on) for each pattern of the 14 boundary signs, -1 at I_CL."""
+    table = np.empty(1 << _N_BOUNDS, dtype=np.int64)
+    for code in range(1 << _N_BOUNDS):
+        bit = [(code >> j) & 1 for j in range(_N_BOUNDS)]
+        fm = 2 if bit[0] else (0 if bit[1] else 1)
+        fp = 2 if bit[2] else (0 if bit[3] else 1)
+        contact = 2 if bit[4] else (0 if bit[5] else 1)
+        tb_pos = (contact == 2 and bit[6]) or (contact == 0 and bit[8])
+        tb_neg = (contact == 2 and bit[7]) or (contact == 0 and bit[9])
+        flow = 1 if (tb_pos and bit[11]) or (tb_neg and bit[10]) else 0
+        key = (((B_ON * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+        table[code] = key if bit[12] and bit[13] else -1
+    return table
+
+
+_KEY_OF_SIGNS = _key_of_signs()
+
 
 class BatchPlant:
     """N plants stepped in lock-step with numpy; parameters scalar or ``(N,)`` per member.
 
     ``update(t_s, x, u) -> x_next`` with ``x`` of shape ``(N, 5)`` and ``u = (duty (N,),
     enable (N,))``. Members whose mode stays the same over the step (almost all, almost
-    always) share one matrix product per mode; the members that switch mode are halved
-    again, vectorised (shared parameters), or by their own ``ScalarPlant`` (per-member
-    parameters). The Hermite excursion check of ``ScalarPlant`` is not run in batch (it
-    would cost more than the step for N members).
+    always) share one matrix product per mode; the same product gives the end state's
+    boundary columns, whose signs give its mode through one table lookup. The members that
+    switch mode are halved again: a few by the ``ScalarPlant`` recursion, many (shared
+    parameters) in lock-step by ``_locate``, with the same sub-steps. The Hermite excursion
+    check of ``ScalarPlant`` is not run in batch (it would cost more than the step for N
+    members).
     """
 
     def __init__(self, params: PlantParams, n: int, h_s: float, event_levels: int = 20) -> None:
@@ -624,13 +674,20 @@ class BatchPlant:
         self._phi: dict[int, np.ndarray] = {}
         self.event_levels = int(event_levels)
         self.split_budget = 4 * self.event_levels + 8
-        self._splits = 0
+        self.n_located = 0  # switches located by _locate (the scalar members count theirs)
+        # Transposed Phi of every (mode, level) slot _locate has used, stacked for gathers.
+        self._slot_row = np.full(N_MODES * 64, -1, dtype=np.int64)
+        self._stack_list: list[np.ndarray] = []
+        self._stack = np.empty((0, N_X + 2, N_X))
+        self._fused_mats: dict[int, np.ndarray] = {}
+        self._boundaries = _boundary_columns(self.co)
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
 
     @property
     def n_events(self) -> int:
-        return sum(p.n_events for p in {id(p): p for p in self.members}.values())
+        scalar = sum(p.n_events for p in {id(p): p for p in self.members}.values())
+        return scalar + self.n_located
 
     def _phi_t(self, key: int, level: int = 0) -> np.ndarray:
         """Transposed ``Phi`` for row-vector products: (7, 5) shared or (N, 7, 5)."""
@@ -645,96 +702,164 @@ class BatchPlant:
             self._phi[slot] = mat
         return mat
 
-    def _apply(
-        self, x: np.ndarray, duty: np.ndarray, keys: np.ndarray, level: int, rows: Any = None
-    ) -> np.ndarray:
-        """One step of every state in its mode (``rows``: member indices, per-member)."""
-        xa = np.empty((x.shape[0], N_X + 2))
+    def _fused(self, key: int) -> np.ndarray:
+        """``[Phi^T | Phi^T C]`` of mode ``key`` over the whole step: (7, 5 + 14) shared or
+        (N, 7, 5 + 14). The extra columns give the boundary signs of the end state (see
+        ``_boundaries``) from the same product as the state."""
+        mat = self._fused_mats.get(key)
+        if mat is None:
+            phi_t = self._phi_t(key, 0)
+            c, c0 = self._boundaries
+            z = phi_t @ c
+            z[..., N_X + 1, :] += c0  # the last column of [x; duty; 1] is 1
+            mat = np.ascontiguousarray(np.concatenate([phi_t, z], axis=-1))
+            self._fused_mats[key] = mat
+        return mat
+
+    def _apply(self, x: np.ndarray, duty: np.ndarray, keys: np.ndarray) -> np.ndarray:
+        """One whole step of every member in its mode: ``(N, 5 + 14)``, the new state and
+        its boundary columns (``_fused``)."""
+        n = x.shape[0]
+        xa = np.empty((n, N_X + 2))
         xa[:, :N_X] = x
         xa[:, N_X] = duty
         xa[:, N_X + 1] = 1.0
         k0 = int(keys[0])
-        if bool(np.all(keys == k0)):
+        if bool((keys == k0).all()):
             groups: list[tuple[int, Any]] = [(k0, None)]
         else:
             groups = [(int(k), keys == k) for k in np.unique(keys)]
-        xn = np.empty_like(x, dtype=float)
+        out = np.empty((n, N_X + _N_BOUNDS))
         for key, sel in groups:
-            phi_t = self._phi_t(key, level)
+            mat = self._fused(key)
             # einsum, not matmul: BLAS goes multi-threaded on these small products.
             if self.per_member:
-                mats = phi_t if rows is None else phi_t[rows]
                 if sel is None:
-                    xn[:] = np.einsum("nj,nji->ni", xa, mats)
+                    np.einsum("nj,nji->ni", xa, mat, out=out)
                 else:
-                    xn[sel] = np.einsum("nj,nji->ni", xa[sel], mats[sel])
+                    out[sel] = np.einsum("nj,nji->ni", xa[sel], mat[sel])
             elif sel is None:
-                np.einsum("nj,ji->ni", xa, phi_t, out=xn)
+                np.einsum("nj,ji->ni", xa, mat, out=out)
             else:
-                xn[sel] = np.einsum("nj,ji->ni", xa[sel], phi_t)
-        return xn
+                out[sel] = np.einsum("nj,ji->ni", xa[sel], mat)
+        return out
 
-    def _events(
-        self, x: np.ndarray, duty: np.ndarray, enable: np.ndarray, keys: np.ndarray, level: int
+    def _stacked(self, slots: np.ndarray) -> np.ndarray:
+        """Transposed ``Phi`` of every (mode, level) slot in ``slots``: (M, 7, 5)."""
+        rows = self._slot_row[slots]
+        missing = rows < 0
+        if missing.any():
+            for slot in np.unique(slots[missing]).tolist():
+                self._slot_row[slot] = len(self._stack_list)
+                self._stack_list.append(self._phi_t(slot // 64, slot % 64))
+            self._stack = np.stack(self._stack_list)
+            rows = self._slot_row[slots]
+        return self._stack[rows]
+
+    def _locate(
+        self, x: np.ndarray, duty: np.ndarray, enable: np.ndarray, keys: np.ndarray
     ) -> np.ndarray:
-        """The halving of ``ScalarPlant._advance``, vectorised over the members that switch
-        mode (shared parameters only)."""
-        xn = self._apply(x, duty, keys, level)
-        k_end = mode_keys(xn, duty, enable, self.co)
-        bad = k_end != keys
-        if not bad.any():
-            return xn
-        if level >= self.event_levels or self._splits <= 0:
-            i = xn[:, I_A]
-            b0, b1 = keys // 54, k_end // 54
-            blocked = ((b0 == B_DIODE_POS) & (i < 0)) | ((b0 == B_DIODE_NEG) & (i > 0))
-            xn[bad & blocked, I_A] = 0.0
-            icl = self.co.icl
-            xn[bad & (b1 == B_LIMIT_POS) & (i > icl), I_A] = icl
-            xn[bad & (b1 == B_LIMIT_NEG) & (i < -icl), I_A] = -icl
-            return xn
-        b = np.nonzero(bad)[0]
-        if b.size <= _SCALAR_EVENTS:
-            # A few members: the scalar recursion is cheaper than numpy on tiny arrays.
-            plant = self.members[0]
-            for j in b:
-                plant._splits = plant.split_budget
-                xn[j] = plant._advance(
-                    x[j].tolist(), float(duty[j]), bool(enable[j]), int(keys[j]), level
-                )
-            return xn
-        self._splits -= 1
-        d, e = duty[b], enable[b]
-        xm = self._events(x[b], d, e, keys[b], level + 1)
-        xn[b] = self._events(xm, d, e, mode_keys(xm, d, e, self.co), level + 1)
-        return xn
+        """The sub-steps of ``ScalarPlant._advance`` for members whose full step switched
+        mode (shared parameters), in lock-step over those members.
+
+        The recursion of ``_advance`` tiles the step with aligned dyadic sub-steps: from
+        time ``s`` it tries the longest aligned one (``h`` times the lowest set bit of
+        ``s / h``), halves it while the mode changes within it (down to ``event_levels``,
+        within the split budget) and takes each accepted sub-step in the mode of its start.
+        Here every member carries its own ``s``, level and budget, and each pass tries one
+        sub-step for every member still inside the step: the same sub-steps, and one numpy
+        pass per sub-step instead of one Python call per member and sub-step.
+        """
+        co = self.co
+        levels = self.event_levels
+        full = 1 << levels
+        m = x.shape[0]
+        x = x.copy()
+        done = np.zeros(m, dtype=np.int64)  # time taken, in units of h / 2**levels
+        level = np.ones(m, dtype=np.int64)  # the whole step (level 0) switched: halve
+        budget = np.full(m, self.split_budget - 1, dtype=np.int64)
+        key = keys.copy()
+        live = np.arange(m)
+        while live.size:
+            lv = level[live]
+            k0 = key[live]
+            d, e = duty[live], enable[live]
+            xa = np.empty((live.size, N_X + 2))
+            xa[:, :N_X] = x[live]
+            xa[:, N_X] = d
+            xa[:, N_X + 1] = 1.0
+            xn = np.einsum("nj,nji->ni", xa, self._stacked(k0 * 64 + lv))
+            k1 = mode_keys(xn, d, e, co)
+            switched = k1 != k0
+            final = (lv >= levels) | (budget[live] <= 0)
+            halve = switched & ~final
+            if halve.any():
+                j = live[halve]
+                budget[j] -= 1
+                level[j] += 1
+            take = ~halve
+            located = switched & final
+            if located.any():
+                # Located to h / 2**levels: accept, as ScalarPlant._advance does. A current
+                # freewheeling through a diode stops at zero; one that reached the chip's
+                # limitation is held at I_CL. The next sub-step starts in the mode of the
+                # projected state.
+                self.n_located += int(located.sum())
+                i = xn[:, I_A]
+                b0, b1 = k0 // 54, k1 // 54
+                blocked = ((b0 == B_DIODE_POS) & (i < 0)) | ((b0 == B_DIODE_NEG) & (i > 0))
+                xn[located & blocked, I_A] = 0.0
+                xn[located & (b1 == B_LIMIT_POS) & (i > co.icl), I_A] = co.icl
+                xn[located & (b1 == B_LIMIT_NEG) & (i < -co.icl), I_A] = -co.icl
+                k1[located] = mode_keys(xn[located], d[located], e[located], co)
+            j = live[take]
+            x[j] = xn[take]
+            key[j] = k1[take]
+            now = done[j] + (full >> lv[take])
+            done[j] = now
+            # Next: the longest aligned sub-step from the new time (its lowest set bit).
+            low = now & -now
+            level[j] = levels - (np.frexp(low.astype(float))[1] - 1)
+            live = live[done[live] < full]
+        return x
 
     def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
         duty, enable = u
-        duty = np.broadcast_to(np.asarray(duty, dtype=float), (self.n,))
-        enable = np.broadcast_to(np.asarray(enable, dtype=bool), (self.n,))
+        n = self.n
+        if not (isinstance(duty, np.ndarray) and duty.shape == (n,) and duty.dtype == float):
+            duty = np.broadcast_to(np.asarray(duty, dtype=float), (n,))
+        if not (isinstance(enable, np.ndarray) and enable.shape == (n,) and enable.dtype == bool):
+            enable = np.broadcast_to(np.asarray(enable, dtype=bool), (n,))
         co = self.co
-        if x is self._last_x and enable.all() and np.all(np.abs(x[:, I_A]) < co.icl):
-            # The array this plant returned last: its mechanical modes are known and the
-            # bridge part is B_ON (0) for every member.
+        known = x is self._last_x and bool(enable.all())
+        if known:
+            # The array this plant returned last: its mechanical modes are known and, the
+            # bridge being on and every current below I_CL (checked with the modes), the
+            # bridge part is B_ON (0).
             keys = self._last_mech
         else:
             keys = mode_keys(x, duty, enable, co)
-        xn = self._apply(x, duty, keys, 0)
-        k_end = mode_keys(xn, duty, enable, co)
+        out = self._apply(x, duty, keys)
+        xn = out[:, :N_X]
+        if known:
+            # Mode of the end state from the signs of its boundary columns (one table
+            # lookup); -1 where a current reached I_CL (the bridge part needs mode_keys).
+            bits = np.packbits(out[:, N_X:] > 0.0, axis=1, bitorder="little")
+            k_end = _KEY_OF_SIGNS[bits.view(np.uint16)[:, 0]]
+        else:
+            k_end = mode_keys(xn, duty, enable, co)
         moved = np.nonzero(k_end != keys)[0]
+        if moved.size and known and bool((k_end < 0).any()):
+            k_end = mode_keys(xn, duty, enable, co)
+            moved = np.nonzero(k_end != keys)[0]
         if moved.size == 0:
             self._last_x, self._last_mech = xn, k_end % 54
             return xn
         self._last_x = None
-        if self.per_member or moved.size <= _SCALAR_EVENTS:
+        if self.per_member or moved.size <= _SCALAR_EVENTS or self.event_levels == 0:
             for j in moved:
                 xj = x[j].tolist()
                 xn[j] = self.members[j].update(t_s, xj, (float(duty[j]), bool(enable[j])))
             return xn
-        # One budget per switching member, as each ScalarPlant would have.
-        self._splits = self.split_budget * moved.size
-        d, e = duty[moved], enable[moved]
-        xm = self._events(x[moved], d, e, keys[moved], 1)
-        xn[moved] = self._events(xm, d, e, mode_keys(xm, d, e, self.co), 1)
+        xn[moved] = self._locate(x[moved], duty[moved], enable[moved], keys[moved])
         return xn
