@@ -67,6 +67,8 @@ class ArrayLaw(LawBase):
         self._kp_i = self._gain(g["kp_i"])
         self._ki_i_dt = self._gain(np.asarray(g["ki_i"]) * self.dt_current_s)
         self._r_ff, self._emf_ff = self._gain(g["r_ff"]), self._gain(g["emf_ff"])
+        # R * I_limit of the float steps (the fixed steps work it out in Q-format).
+        self._r_lim = np.asarray(g["r_ff"], dtype=float) * self.i_limit_a
         self._kpos_m1 = self._gain(self.k_pos - 1.0)
         self._kvel = self._gain(self.k_vel)
         self._kdist = self._gain(self.k_dist)
@@ -195,6 +197,7 @@ class ArrayLaw(LawBase):
         self._i_v = clip(i_v, il)
         self._vr = vr
         self._iref = clip(u, il)
+        self.i_limit_a = i_limit_a
 
     def current(
         self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
@@ -217,12 +220,23 @@ class ArrayLaw(LawBase):
         self._ref_pipe[k] = i_ref
         self._ref_i = (k + 1) % (self.delay + 1)
         # Same association as ScalarLaw, so that float results agree bit for bit.
+        emf = self._mul(self._vel, self._emf_ff)
         u = self._sat(self._mul(e, self._kp_i) + self._i_i)
         u = self._sat(u + self._mul(i_ref, self._r_ff))
-        u = self._sat(u + self._mul(self._vel, self._emf_ff))
+        u = self._sat(u + emf)
         ul = self._sig(self.duty_limit * self.supply_v)
         hold = ((u > ul) & (e > 0)) | ((u < -ul) & (e < 0))
         i_i = np.where(hold, self._i_i, self._sat(self._i_i + self._mul(e, self._ki_i_dt)))
+        # The regenerative clamp and its back-calculation (see ScalarLaw.current).
+        r_lim = self._mul(self._sig(self.i_limit_a), self._r_ff)
+        lo, hi = self._sat(emf - r_lim), self._sat(emf + r_lim)
+        raised = (u < lo) & (u >= 0)
+        lowered = (u > hi) & (u <= 0)
+        regen = raised | lowered
+        if regen.any():
+            c = np.where(raised, lo, hi)
+            i_i = np.where(regen, self._sat(self._i_i + self._sat(c - u)), i_i)
+            u = np.where(regen, c, u)
         self._i_i = clip(i_i, ul)
         u = clip(u, ul)
         if self.fixed:
@@ -286,6 +300,9 @@ class ArrayLaw(LawBase):
         self._i_v = clip(i_v, i_limit_a)
         self._vr = vr
         self._iref = clip(u, i_limit_a)
+        if i_limit_a != self.i_limit_a:
+            self.i_limit_a = i_limit_a
+            self._r_lim = self._r_ff * i_limit_a
 
     def _current_float(
         self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
@@ -302,10 +319,19 @@ class ArrayLaw(LawBase):
         e = ref_d - i_meas
         self._ref_pipe[k] = i_ref
         self._ref_i = (k + 1) % (self.delay + 1)
-        u = e * self._kp_i + self._i_i + i_ref * self._r_ff + self._vel * self._emf_ff
+        emf = self._vel * self._emf_ff
+        u = e * self._kp_i + self._i_i + i_ref * self._r_ff + emf
         ul = self.duty_limit * self.supply_v
         hold = (np.abs(u) > ul) & (u * e > 0.0)
         i_i = np.where(hold, self._i_i, self._i_i + e * self._ki_i_dt)
+        # The regenerative clamp and its back-calculation (see ScalarLaw.current).
+        d = u - emf
+        r_lim = self._r_lim
+        regen = (np.abs(d) > r_lim) & (d * u <= 0.0)
+        if regen.any():
+            c = np.where(d < 0.0, emf - r_lim, emf + r_lim)
+            i_i = np.where(regen, self._i_i + (c - u), i_i)
+            u = np.where(regen, c, u)
         self._i_i = clip(i_i, ul)
         steps = np.round(clip(u, ul) / self.supply_v * self.arr).astype(np.int64)
         if self.delay:

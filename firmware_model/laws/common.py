@@ -60,6 +60,8 @@ class LawBase:
         self.arr = cur.pwm_arr
         self.a_per_adc = cur.a_per_adc
         self.sense_floor = cur.sense_floor_counts
+        # The current limit of the last servo step (the regenerative clamp's bound).
+        self.i_limit_a = params.limits.current_limit_a
         self.gains: dict[str, Any] = {
             name: getattr(getattr(params, table), key) for name, (table, key) in GAIN_NAMES.items()
         }

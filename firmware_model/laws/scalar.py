@@ -36,6 +36,7 @@ class ScalarLaw(LawBase):
         self._kp_i, self._ki_i_dt = float(g["kp_i"]), float(g["ki_i"]) * self.dt_current_s
         self._r_ff, self._emf_ff = float(g["r_ff"]), float(g["emf_ff"])
         self._u_lim = self.duty_limit * self.supply_v
+        self._r_lim = self._r_ff * self.i_limit_a
 
     def set_gains(self, **gains: float) -> None:
         """Replace some of the run-time gains (names of :data:`GAIN_NAMES`)."""
@@ -143,6 +144,9 @@ class ScalarLaw(LawBase):
         self._i_v = i_v
         self.vel_ref_dps = vr
         self.current_ref_a = u
+        if i_limit_a != self.i_limit_a:
+            self.i_limit_a = i_limit_a
+            self._r_lim = self._r_ff * i_limit_a
 
     def current(self, adc_counts: int, enabled: bool) -> float:
         """One current-loop period; returns the duty the bridge applies next (ARR steps)."""
@@ -167,9 +171,20 @@ class ScalarLaw(LawBase):
         self._ref_pipe[k] = i_ref
         self._ref_i = (k + 1) % (self.delay + 1)
         i_i = self._i_i
-        u = self._kp_i * e + i_i + self._r_ff * i_ref + self._emf_ff * self.vel_dps
+        emf = self._emf_ff * self.vel_dps
+        u = self._kp_i * e + i_i + self._r_ff * i_ref + emf
         u_lim = self._u_lim
-        if u > u_lim:
+        # Regenerative clamp. A current against the duty (or with no duty) is invisible to
+        # the high-side sense, so on that side the voltage is kept where the model predicts
+        # at most the current limit, |u - emf| <= R * I_limit; the integrator tracks the
+        # clamp (back-calculation), so that the loop leaves it without a jump.
+        d = u - emf
+        r_lim = self._r_lim
+        if (d < -r_lim or d > r_lim) and d * u <= 0.0:
+            c = emf - r_lim if d < 0.0 else emf + r_lim
+            i_i += c - u
+            u = u_lim if c > u_lim else (-u_lim if c < -u_lim else c)
+        elif u > u_lim:
             u = u_lim
             if e < 0.0:
                 i_i += self._ki_i_dt * e

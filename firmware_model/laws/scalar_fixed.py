@@ -140,6 +140,7 @@ class ScalarFixedLaw(LawBase):
         self._i_v = -il if i_v < -il else (il if i_v > il else i_v)
         self._vr = vr
         self._iref = -il if u < -il else (il if u > il else u)
+        self.i_limit_a = i_limit_a
 
     def current(self, adc_counts: int, enabled: bool) -> float:
         adc = int(adc_counts)
@@ -156,12 +157,22 @@ class ScalarFixedLaw(LawBase):
         e = _qsat(ref_d - i_meas)
         self._ref_pipe[k] = i_ref
         self._ref_i = (k + 1) % (self.delay + 1)
+        emf = _qmul(self._vel, self._emf_ff)
         u = _qsat(_qmul(e, self._kp_i) + self._i_i)
         u = _qsat(u + _qmul(i_ref, self._r_ff))
-        u = _qsat(u + _qmul(self._vel, self._emf_ff))
+        u = _qsat(u + emf)
         ul = self._ul
         i_i = self._i_i
-        if not ((u > ul and e > 0) or (u < -ul and e < 0)):
+        # The regenerative clamp and its back-calculation (see ScalarLaw.current).
+        r_lim = _qmul(_qsig(self.i_limit_a), self._r_ff)
+        lo, hi = _qsat(emf - r_lim), _qsat(emf + r_lim)
+        if u < lo and u >= 0:
+            i_i = _qsat(i_i + _qsat(lo - u))
+            u = lo
+        elif u > hi and u <= 0:
+            i_i = _qsat(i_i + _qsat(hi - u))
+            u = hi
+        elif not ((u > ul and e > 0) or (u < -ul and e < 0)):
             i_i = _qsat(i_i + _qmul(e, self._ki_i_dt))
         self._i_i = -ul if i_i < -ul else (ul if i_i > ul else i_i)
         u = -ul if u < -ul else (ul if u > ul else u)

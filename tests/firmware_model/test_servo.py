@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from firmware_model import fixedpoint as fx
 from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
 from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
 from firmware_model.units import AXIS_DEG_PER_COUNT
@@ -136,6 +137,61 @@ def test_current_integrator_does_not_wind_up_when_the_sense_is_blind():
     assert law._i_i != 0.0
 
 
+def _cruise(law, counts_per_tick: float, ticks: int = 300) -> None:
+    """Run the observer at a constant speed (counts per tick) until it has converged."""
+    x = 0.0
+    for _ in range(ticks):
+        x += counts_per_tick
+        law.estimate(_counts(x))
+
+
+@pytest.mark.parametrize("direction", [1.0, -1.0])
+def test_regenerative_clamp_bounds_the_unseen_current_and_back_calculates(direction):
+    # Braking from 500 deg/s with a stale integrator (-3 V: the model error learnt at cruise,
+    # e.g. a supply above the configured 24 V). The duty keeps the old sign and the IS pin
+    # reads 0, so the loop cannot see the current; without the clamp the voltage would be
+    # 3 V further into braking than the model allows (-7.5 A predicted).
+    params = FirmwareParams()
+    cur = params.current
+    law = ScalarLaw(params)
+    law.reset(0)
+    _cruise(law, direction * 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
+    emf = cur.back_emf_v_per_dps * law.vel_dps
+    assert abs(emf) > cur.resistance_ohm * 5.0  # -5 A needs a duty of the old sign
+    law._i_i = -3.0 * direction
+    law.duty = 0.5 * direction  # still driving forwards: the sense is blind
+    law.servo(law.pos_deg - 100.0 * direction, 0.0, 0.0, 1000.0, 5.0)  # i_ref = -5 A
+    assert law.current_ref_a == -5.0 * direction
+    law.current(0, True)
+    computed = law._pipe[(law._pipe_i - 1) % law.delay]  # the duty of the next period
+    predicted_a = (computed * cur.supply_v - emf) / cur.resistance_ohm
+    assert predicted_a * direction == pytest.approx(-5.0, abs=cur.supply_v / 3600 / 1.2)
+    # Back-calculation: the integrator now holds what makes the unclamped output the
+    # clamp, so the loop leaves the clamp without a jump.
+    assert law._i_i == pytest.approx(0.0, abs=1e-9)
+    # Without a stale integrator the clamp does not act: the voltage is R i_ref + emf.
+    law._i_i = 0.0
+    law.current(0, True)
+    computed = law._pipe[(law._pipe_i - 1) % law.delay]
+    assert computed == round((emf - 5.0 * direction * 1.2) / 24.0 * 3600) / 3600
+
+
+def test_regenerative_clamp_leaves_a_current_in_the_duty_direction_to_the_loop():
+    # At 500 deg/s a negative duty drives a negative current through the other half-bridge's
+    # high side, which the IS pin senses: no clamp there, the PI corrects what it sees.
+    params = FirmwareParams()
+    law = ScalarLaw(params)
+    law.reset(0)
+    _cruise(law, 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
+    law._i_i = -20.0
+    law.duty = -0.1
+    law.servo(law.pos_deg - 100.0, 0.0, 0.0, 1000.0, 5.0)
+    law.current(0, True)
+    computed = law._pipe[(law._pipe_i - 1) % law.delay]
+    emf = params.current.back_emf_v_per_dps * law.vel_dps
+    assert computed == round((emf - 6.0 - 20.0) / 24.0 * 3600) / 3600 < 0.0
+
+
 def test_integrators_stay_inside_the_clamps():
     law = ScalarLaw(FirmwareParams())
     law.reset(0)
@@ -209,6 +265,46 @@ def test_scalar_and_batch_fixed_point_laws_agree_bit_for_bit():
         assert scalar.vel_dps == batch.vel_dps[0]
         assert scalar.current_ref_a == batch.current_ref_a[0]
         assert scalar.current_meas_a == batch.current_meas_a[0]
+
+
+@pytest.mark.parametrize("arithmetic", ["float", "fixed"])
+def test_scalar_and_batch_laws_agree_bit_for_bit_through_the_regenerative_clamp(arithmetic):
+    # Fast motion both ways (up to ~550 deg/s), references at the limit against it, a blind
+    # sense most of the time and a stale integrator now and then: the clamp acts in both
+    # directions, and the scalar and batch laws still compute the same bits.
+    params = FirmwareParams(servo=ServoParams(arithmetic=arithmetic))
+    fixed = arithmetic == "fixed"
+    scalar = ScalarFixedLaw(params) if fixed else ScalarLaw(params)
+    batch = ArrayLaw(params, 1, fixed=fixed)
+    scalar.reset(0)
+    batch.reset([0])
+    rng = np.random.default_rng(5)
+    x = 0.0
+    clamped = {1.0: 0, -1.0: 0}
+    for k in range(800):
+        speed = 4000.0 * math.sin(2 * math.pi * k / 400)
+        x += speed
+        raw = _counts(x)
+        scalar.estimate(raw)
+        batch.estimate(np.array([raw]))
+        sign = 1.0 if speed >= 0 else -1.0
+        sp = (scalar.pos_deg - 100.0 * sign, 0.0, 0.0)
+        scalar.servo(*sp, 990.0, 5.0)
+        batch.servo(*sp, 990.0, 5.0)
+        stale = k % 10 == 0 and k > 100
+        if stale:
+            v = -3.0 * sign
+            scalar._i_i = fx.to_sig(v).item() if fixed else v
+            batch._i_i = fx.to_sig(np.array([v])) if fixed else np.array([v])
+        adc = int(rng.integers(0, 800)) if k % 7 == 0 else 0
+        d1 = scalar.current(adc, True)
+        d2 = batch.current(np.array([adc]), np.array([True]))
+        assert d1 == d2[0]
+        assert scalar._i_i == batch._i_i[0]
+        assert scalar.current_meas_a == batch.current_meas_a[0]
+        if stale and abs(scalar._i_i) < (1 << 10 if fixed else 0.02):  # back-calculated
+            clamped[sign] += 1
+    assert min(clamped.values()) >= 5
 
 
 def test_batch_boot_readings_unwrap_around_member_0():
