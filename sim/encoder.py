@@ -32,6 +32,9 @@ class Encoder:
         self._noise = params.noise_rms_lsb
         self._offset = params.offset_counts
         self._block: list[float] = []
+        self._noisy = bool(np.any(self._noise))
+        cpr = self.counts_per_rev
+        self._wrap_mask = cpr - 1 if cpr & (cpr - 1) == 0 else None
 
     def read(self, x: list[float]) -> int:
         """Counts in ``[0, counts_per_rev)`` for a single state list (fast path)."""
@@ -45,7 +48,16 @@ class Encoder:
 
     def read_batch(self, x: np.ndarray) -> np.ndarray:
         """Counts (int64 array (N,)) for states of shape (N, 5)."""
-        c = (x[:, POS] - x[:, VEL] * self._latency_s) * self._counts_per_rad + self._offset
-        if np.any(self._noise):
-            c = c + self._noise * self.rng.standard_normal(x.shape[0])
-        return np.floor(c).astype(np.int64) % self.counts_per_rev
+        # The arithmetic of read(), in place (each numpy call costs more than its work).
+        c = x[:, VEL] * self._latency_s
+        np.subtract(x[:, POS], c, out=c)
+        c *= self._counts_per_rad
+        c += self._offset
+        if self._noisy:
+            c += self._noise * self.rng.standard_normal(x.shape[0])
+        np.floor(c, out=c)
+        counts = c.astype(np.int64)
+        if self._wrap_mask is not None:
+            counts &= self._wrap_mask  # the floored modulo of a power of two
+            return counts
+        return counts % self.counts_per_rev

@@ -38,7 +38,6 @@ from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection
-from sim.bridge import adc_counts, quantise_duty, sensed_current_a
 from sim.config import TABLES, BenchConfig, Experiment
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams
@@ -272,8 +271,10 @@ class Simulation:
         levels = bench.loop.event_levels
         self._sense = plant.current_sense
         self._a_per_lsb = float(np.asarray(plant.current_sense.a_per_lsb).flat[0])
+        self._a_per_lsb_batch = plant.current_sense.a_per_lsb
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
         self._adc_noise = plant.current_sense.noise_rms_lsb
+        self._adc_noisy = bool(np.any(self._adc_noise))
         self._vs = plant.supply.voltage_v
         self._bridge = plant.bridge
         self._arr = float(np.asarray(plant.bridge.arr).flat[0])
@@ -308,6 +309,11 @@ class Simulation:
         else:
             self._cap = 0
             self._arrays: dict[str, np.ndarray] = {}
+            self._xlog = np.empty((0, batch, 5))
+            # The IS pin reads the current in the direction of the applied duty, from the
+            # high side only (sim.bridge.sensed_current_a): sign(duty), 0 while disabled.
+            self._sense_sign = np.zeros(batch)
+            self._arr_batch = plant.bridge.arr
 
     # ---------------------------------------------------------------- public API
     @property
@@ -373,7 +379,14 @@ class Simulation:
             cols["voltage_v"] = np.array(self._volts, dtype=float)
             return RunLog(**cols)
         n = self.tick
-        cols = {f: self._arrays[f][:n].T.copy() for f in LOG_FIELDS if f != "t_s"}
+        cols = {f: a[:n].T.copy() for f, a in self._arrays.items()}
+        x = self._xlog[:n]  # (n, N, 5)
+        pos = x[:, :, 1]
+        cols["true_pos_deg"] = (pos * self._deg_per_rad_axis).T.copy()
+        cols["true_vel_dps"] = (x[:, :, VEL] * self._deg_per_rad_axis).T.copy()
+        cols["platter_pos_deg"] = np.degrees(pos / self._n_total - x[:, :, TWIST]).T.copy()
+        cols["motor_pos_rad"] = pos.T.copy()
+        cols["current_a"] = x[:, :, I_A].T.copy()
         cols["t_s"] = np.arange(n) * self.dt_s
         return RunLog(**cols)
 
@@ -442,14 +455,16 @@ class Simulation:
     def _grow(self, min_cap: int = 0) -> None:
         cap = max(1024, 2 * self._cap, min_cap)
         n = self.batch
-        for f in LOG_FIELDS:
-            if f == "t_s":
-                continue
+        for f in (*FW_FIELDS, "voltage_v"):
             dtype = np.int64 if f in _INT_FIELDS else float
             new = np.empty((cap, n), dtype=dtype)  # row per tick: contiguous writes
             if f in self._arrays:
                 new[: self._cap] = self._arrays[f][: self._cap]
             self._arrays[f] = new
+        # The plant state at each sampling instant; log() derives its columns.
+        new = np.empty((cap, n, 5))
+        new[: self._cap] = self._xlog[: self._cap]
+        self._xlog = new
         self._cap = cap
 
     def reserve(self, n_ticks: int) -> None:
@@ -459,45 +474,51 @@ class Simulation:
 
     def _step_batch(self) -> None:
         fw = self.fw
-        plant = self.plant
         x = self._x
         k = self.tick
         keep = self._keep_log
         if keep:
             if k >= self._cap:
                 self._grow()
-            arrays = self._arrays
-            # Plant signals at the sampling instant, where the firmware sees them.
-            pos = x[:, 1]
-            arrays["true_pos_deg"][k] = pos * self._deg_per_rad_axis
-            arrays["true_vel_dps"][k] = x[:, VEL] * self._deg_per_rad_axis
-            arrays["platter_pos_deg"][k] = np.degrees(pos / self._n_total - x[:, TWIST])
-            arrays["motor_pos_rad"][k] = pos
-            arrays["current_a"][k] = x[:, I_A]
+            # The plant state at the sampling instant, where the firmware sees it.
+            self._xlog[k] = x
         counts = self.encoder.read_batch(x)
         tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
         if tx:
             self.uart_tx.write(tx)
         t = k * self.dt_s
+        arr = self._arr_batch
         for _ in range(self.multiple):
-            sensed = sensed_current_a(x[:, I_A], self._duty, self._enable)
-            noise = (
-                self._adc_noise * self._rng.standard_normal(self.batch)
-                if np.any(self._adc_noise)
-                else 0.0
-            )
-            adc = adc_counts(sensed, self._sense, noise)
-            duty, enable = fw.current_tick(adc)
-            # Copies (the firmware may reuse its output arrays), on the timer's steps.
-            self._duty = quantise_duty(np.array(duty, dtype=float), self._bridge)
-            self._enable = np.array(enable, dtype=bool)
+            # sim.bridge.sensed_current_a and adc_counts, with the duty's sign kept from
+            # the last period (the same arithmetic, fewer numpy calls).
+            c = np.maximum(0.0, self._sense_sign * x[:, I_A])
+            c /= self._a_per_lsb_batch
+            if self._adc_noisy:
+                c += self._adc_noise * self._rng.standard_normal(self.batch)
+            c += 0.5
+            np.floor(c, out=c)
+            # np.clip's Python wrapper costs more than these two calls.
+            np.minimum(c, self._adc_full, out=c)
+            if self._adc_noisy:
+                np.maximum(c, 0.0, out=c)
+            duty, enable = fw.current_tick(c.astype(np.int64))
+            # A copy (the firmware may reuse its output arrays) on the timer's steps:
+            # sim.bridge.quantise_duty.
+            d = np.minimum(np.maximum(duty, -1.0), 1.0)
+            d *= arr
+            np.round(d, out=d)
+            d /= arr
+            en = np.array(enable, dtype=bool)
+            self._duty, self._enable = d, en
+            self._sense_sign = np.where(en, np.sign(d), 0.0)
             if self._record_inputs:
-                self._inputs.append((self._duty.copy(), self._enable.copy()))
-            x = plant.update(t, x, (self._duty, self._enable))
+                self._inputs.append((d.copy(), en.copy()))
+            x = self.plant.update(t, x, (d, en))
             t += self.h_s
         self._x = x
         if keep:
             sig = fw.signals()
+            arrays = self._arrays
             for f in FW_FIELDS:
                 arrays[f][k] = sig[f]
             arrays["voltage_v"][k] = np.where(self._enable, self._duty * self._vs, 0.0)

@@ -641,6 +641,11 @@ def _key_of_signs() -> np.ndarray:
 
 
 _KEY_OF_SIGNS = _key_of_signs()
+_SIGN_WEIGHTS = 2.0 ** np.arange(_N_BOUNDS)  # boundary signs -> row of _KEY_OF_SIGNS
+_FUSED = N_X + 2 + _N_BOUNDS  # columns of BatchPlant's fused product
+# OpenBLAS runs a product of m * n * k below 65536 multiply-adds on one thread (its
+# SMP_THRESHOLD_MIN; the default build multiplies it by 4).
+_BLAS_SINGLE_THREAD = 65536
 
 
 class BatchPlant:
@@ -680,6 +685,7 @@ class BatchPlant:
         self._stack_list: list[np.ndarray] = []
         self._stack = np.empty((0, N_X + 2, N_X))
         self._fused_mats: dict[int, np.ndarray] = {}
+        self._last_out = np.empty((0, _FUSED))
         self._boundaries = _boundary_columns(self.co)
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
@@ -703,45 +709,49 @@ class BatchPlant:
         return mat
 
     def _fused(self, key: int) -> np.ndarray:
-        """``[Phi^T | Phi^T C]`` of mode ``key`` over the whole step: (7, 5 + 14) shared or
-        (N, 7, 5 + 14). The extra columns give the boundary signs of the end state (see
-        ``_boundaries``) from the same product as the state."""
+        """The whole step of mode ``key`` as one product ``[x; duty; 1] @ F``: shared
+        ``F`` (7, 21) or per member (N, 7, 21). Columns 0-4 are ``Phi^T`` (the new state),
+        5 and 6 give 0 and 1 (the next step writes its duty into column 5 and multiplies
+        the same rows again), 7-20 the end state's boundary columns (``_BOUNDS``)."""
         mat = self._fused_mats.get(key)
         if mat is None:
             phi_t = self._phi_t(key, 0)
             c, c0 = self._boundaries
             z = phi_t @ c
-            z[..., N_X + 1, :] += c0  # the last column of [x; duty; 1] is 1
-            mat = np.ascontiguousarray(np.concatenate([phi_t, z], axis=-1))
+            z[..., N_X + 1, :] += c0  # the last entry of [x; duty; 1] is 1
+            carry = np.zeros(phi_t.shape[:-1] + (2,))
+            carry[..., N_X + 1, 1] = 1.0
+            mat = np.ascontiguousarray(np.concatenate([phi_t, carry, z], axis=-1))
             self._fused_mats[key] = mat
         return mat
 
-    def _apply(self, x: np.ndarray, duty: np.ndarray, keys: np.ndarray) -> np.ndarray:
-        """One whole step of every member in its mode: ``(N, 5 + 14)``, the new state and
-        its boundary columns (``_fused``)."""
-        n = x.shape[0]
-        xa = np.empty((n, N_X + 2))
-        xa[:, :N_X] = x
-        xa[:, N_X] = duty
-        xa[:, N_X + 1] = 1.0
+    def _apply(self, xa: np.ndarray, keys: np.ndarray) -> np.ndarray:
+        """One whole step of every member in its mode: ``[x; duty; 1] (N, 7) @ F`` ->
+        ``(N, 21)`` (``_fused``)."""
+        n = xa.shape[0]
         k0 = int(keys[0])
         if bool((keys == k0).all()):
             groups: list[tuple[int, Any]] = [(k0, None)]
         else:
             groups = [(int(k), keys == k) for k in np.unique(keys)]
-        out = np.empty((n, N_X + _N_BOUNDS))
+        out = np.empty((n, _FUSED))
+        # BLAS (matmul) is 6x faster than einsum here, but goes multi-threaded on large
+        # products, which stalls on a busy machine: only below OpenBLAS's threshold.
+        blas = n * (N_X + 2) * _FUSED < _BLAS_SINGLE_THREAD
         for key, sel in groups:
             mat = self._fused(key)
-            # einsum, not matmul: BLAS goes multi-threaded on these small products.
             if self.per_member:
                 if sel is None:
                     np.einsum("nj,nji->ni", xa, mat, out=out)
                 else:
                     out[sel] = np.einsum("nj,nji->ni", xa[sel], mat[sel])
             elif sel is None:
-                np.einsum("nj,ji->ni", xa, mat, out=out)
+                if blas:
+                    np.matmul(xa, mat, out=out)
+                else:
+                    np.einsum("nj,ji->ni", xa, mat, out=out)
             else:
-                out[sel] = np.einsum("nj,ji->ni", xa[sel], mat)
+                out[sel] = xa[sel] @ mat if blas else np.einsum("nj,ji->ni", xa[sel], mat)
         return out
 
     def _stacked(self, slots: np.ndarray) -> np.ndarray:
@@ -831,7 +841,8 @@ class BatchPlant:
         if not (isinstance(enable, np.ndarray) and enable.shape == (n,) and enable.dtype == bool):
             enable = np.broadcast_to(np.asarray(enable, dtype=bool), (n,))
         co = self.co
-        known = x is self._last_x and bool(enable.all())
+        chained = x is self._last_x
+        known = chained and bool(enable.all())
         if known:
             # The array this plant returned last: its mechanical modes are known and, the
             # bridge being on and every current below I_CL (checked with the modes), the
@@ -839,13 +850,21 @@ class BatchPlant:
             keys = self._last_mech
         else:
             keys = mode_keys(x, duty, enable, co)
-        out = self._apply(x, duty, keys)
+        if chained:
+            # x is columns 0-4 of the last product, whose column 6 is 1: [x; duty; 1] in place.
+            xa = self._last_out[:, : N_X + 2]
+        else:
+            xa = np.empty((n, N_X + 2))
+            xa[:, :N_X] = x
+            xa[:, N_X + 1] = 1.0
+        xa[:, N_X] = duty
+        out = self._apply(xa, keys)
         xn = out[:, :N_X]
         if known:
             # Mode of the end state from the signs of its boundary columns (one table
             # lookup); -1 where a current reached I_CL (the bridge part needs mode_keys).
-            bits = np.packbits(out[:, N_X:] > 0.0, axis=1, bitorder="little")
-            k_end = _KEY_OF_SIGNS[bits.view(np.uint16)[:, 0]]
+            signs = (out[:, N_X + 2 :] > 0.0) @ _SIGN_WEIGHTS
+            k_end = _KEY_OF_SIGNS[signs.astype(np.intp)]
         else:
             k_end = mode_keys(xn, duty, enable, co)
         moved = np.nonzero(k_end != keys)[0]
@@ -853,7 +872,7 @@ class BatchPlant:
             k_end = mode_keys(xn, duty, enable, co)
             moved = np.nonzero(k_end != keys)[0]
         if moved.size == 0:
-            self._last_x, self._last_mech = xn, k_end % 54
+            self._last_x, self._last_mech, self._last_out = xn, k_end % 54, out
             return xn
         self._last_x = None
         if self.per_member or moved.size <= _SCALAR_EVENTS or self.event_levels == 0:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.params import PlantParams
-from sim.plant import _KEY_OF_SIGNS, N_X, BatchPlant, ScalarPlant, mode_keys
+from sim.plant import _KEY_OF_SIGNS, _SIGN_WEIGHTS, N_X, BatchPlant, ScalarPlant, mode_keys
 
 DT_S = 0.002
 
@@ -22,8 +22,7 @@ def test_boundary_signs_give_the_mode_keys():
     enable = np.ones(n, dtype=bool)
     keys = mode_keys(x, duty, enable, plant.co)
     c, c0 = plant._boundaries
-    bits = np.packbits(x @ c + c0 > 0.0, axis=1, bitorder="little")
-    signs = _KEY_OF_SIGNS[bits.view(np.uint16)[:, 0]]
+    signs = _KEY_OF_SIGNS[((x @ c + c0 > 0.0) @ _SIGN_WEIGHTS).astype(np.intp)]
     at_limit = np.abs(x[:, 0]) >= plant.co.icl
     assert np.all(signs[at_limit] == -1)
     np.testing.assert_array_equal(signs[~at_limit], keys[~at_limit])
