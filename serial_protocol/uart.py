@@ -235,9 +235,20 @@ class EmulatedUart:
         if not dt_s >= 0.0:
             raise ValueError(f"dt_s = {dt_s!r}: must be >= 0")
         fifo = self._fifo
+        credit = self._credit + dt_s * self._bytes_per_s
+        # The line empties the FIFO (what a fast line does every tick): the snapping below
+        # could not change that, and round(x, 9) costs more than the rest of this call.
+        if credit >= len(fifo) + 1.0:
+            n = len(fifo)
+            self._credit = 0.0
+            if n == 0:
+                return b""
+            chunk = bytes(fifo)
+            fifo.clear()
+            return self._deliver(chunk, n)
         # snapped to 1e-9 byte so that float error cannot accumulate over millions of ticks
         # (23.04 bytes per 2 ms at 115200 baud must give exactly 23040 bytes per second)
-        credit = round(self._credit + dt_s * self._bytes_per_s, 9)
+        credit = round(credit, 9)
         n = int(credit)
         if n >= len(fifo):
             # the line goes idle: the next byte starts when it is written, no banked credit
@@ -249,6 +260,10 @@ class EmulatedUart:
             return b""
         chunk = bytes(fifo[:n])
         del fifo[:n]
+        return self._deliver(chunk, n)
+
+    def _deliver(self, chunk: bytes, n: int) -> bytes:
+        """Count the ``n`` bytes of ``chunk`` shifted out, inject faults, return them."""
         stats = self.stats
         start = stats.sent
         stats.sent = start + n
