@@ -108,6 +108,63 @@ def quietest_chunks(
     return min(per), statistics.median(per)
 
 
+def time_split(exp: Experiment, chunk: int, batch: int | None = None) -> dict[str, float]:
+    """Where a tick's time goes: the firmware's calls (``servo_tick``, ``current_tick``,
+    ``signals``), the plant's ``update``, and the rest of the loop (encoder, ADC, duty
+    rounding, log rows, UART), in us per tick: medians over the quietest quarter of the
+    ``chunk``-tick chunks. Each timed call carries ~0.1-0.3 us of timer overhead."""
+    from serial_protocol import frame
+
+    sim = Simulation(exp.bench, seed=0, batch=batch)
+    n = round(exp.duration_s / exp.bench.dt_s)
+    sim.reserve(n)
+    spent = {"firmware": 0.0, "plant": 0.0}
+
+    def timed(obj: object, name: str, part: str) -> None:
+        call = getattr(obj, name)
+
+        def wrapper(*args):
+            t0 = time.perf_counter()
+            out = call(*args)
+            spent[part] += time.perf_counter() - t0
+            return out
+
+        setattr(obj, name, wrapper)
+
+    for name in ("servo_tick", "current_tick", "signals"):
+        timed(sim.fw, name, "firmware")
+    timed(sim.plant, "update", "plant")
+    at = {round(c.t_s / exp.bench.dt_s): c for c in exp.commands}
+    rows = []
+    seq = 0
+    for start in range(0, n, chunk):
+        for k in range(start, start + chunk):
+            if k in at:
+                sim.pc_write(frame.encode(at[k].message(seq + 1), seq))
+                seq += 1
+        before = dict(spent)
+        t0 = time.perf_counter()
+        sim.step(chunk)
+        wall = time.perf_counter() - t0
+        rows.append((wall, {part: spent[part] - before[part] for part in spent}))
+    rows.sort(key=lambda r: r[0])
+    quiet = rows[: max(1, len(rows) // 4)]
+    out = {"tick": statistics.median(r[0] for r in quiet) / chunk * 1e6}
+    for part in spent:
+        out[part] = statistics.median(r[1][part] for r in quiet) / chunk * 1e6
+    out["rest"] = out["tick"] - out["firmware"] - out["plant"]
+    return out
+
+
+def print_split(split: dict[str, float]) -> None:
+    tick = split["tick"]
+    parts = ", ".join(
+        f"{part} {split[part]:.1f} us ({100 * split[part] / tick:.0f} %)"
+        for part in ("firmware", "plant", "rest")
+    )
+    print(f"    where a tick goes (quietest quarter of chunks, timed): {tick:.1f} us = {parts}")
+
+
 def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
     """Same closed loop, ZOH plant vs solve_ivp plant, same seed: wall per tick and the
     largest motor-angle difference."""
@@ -188,6 +245,8 @@ def main() -> None:
         f"({1e6 / q / 500:.0f}x real time), median chunk {m:.1f} us/tick"
     )
 
+    print_split(time_split(exp20, 100))
+
     expb = fig8_experiment(args.batch_s)
     walls = time_run(expb, args.batch, args.repeat)
     ticks = args.batch * round(args.batch_s / expb.bench.dt_s)
@@ -205,6 +264,8 @@ def main() -> None:
         f"    stepped in chunks of 20 ticks: quietest chunk {args.batch / q * 1e6:,.0f} "
         f"ticks/s, median chunk {args.batch / m * 1e6:,.0f} ticks/s"
     )
+
+    print_split(time_split(expb, 20, batch=args.batch))
 
     r = loop_ivp_vs_zoh(exp20, args.ivp_s)
     print(f"[3] closed loop, {args.ivp_s:g} s, same seed: ZOH {r['zoh_us_per_tick']:.1f} us/tick,")
