@@ -522,7 +522,7 @@ class Simulation:
             # sim.bridge.quantise_duty.
             d = np.minimum(np.maximum(duty, -1.0), 1.0)
             d *= arr
-            np.round(d, out=d)
+            np.rint(d, out=d)  # np.round's rounding (half to even), without its wrapper
             d /= arr
             en = np.array(enable, dtype=bool)
             self._duty, self._enable = d, en

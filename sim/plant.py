@@ -423,6 +423,9 @@ class ScalarPlant:
         self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
         self._g_max = 1.0 / (self.co.n * self.co.eta)
         co = self.co
+        self._key_consts = (
+            co.wbm, co.wbp, co.half, co.k, co.c, co.n, co.vs, co.r, co.ke, co.icl, co.vd2,
+        )  # fmt: skip
         self._gate = (
             co.inv_n, co.half, co.k, co.c, co.vs, co.ke, co.r, co.kt, co.tcm, co.bm,
             self._g_max, co.jm, co.wbm, co.tcp, co.bp, co.jp, co.wbp,
@@ -447,35 +450,34 @@ class ScalarPlant:
 
     def key(self, x: list[float], duty: float, enable: bool) -> int:
         """Mode key of state ``x`` under input (duty, enable); same rules as ``mode_keys``."""
-        co = self.co
+        wbm, wbp, half, k, c, n, vs, r, ke, icl, vd2 = self._key_consts
         i, _, w, tw, wp = x
-        fm = 2 if w > co.wbm else (0 if w < -co.wbm else 1)
-        fp = 2 if wp > co.wbp else (0 if wp < -co.wbp else 1)
-        if tw > co.half:
+        fm = 2 if w > wbm else (0 if w < -wbm else 1)
+        fp = 2 if wp > wbp else (0 if wp < -wbp else 1)
+        if tw > half:
             contact = 2
-            tb = co.k * (tw - co.half) + co.c * (w / co.n - wp)
-        elif tw < -co.half:
+            tb = k * (tw - half) + c * (w / n - wp)
+        elif tw < -half:
             contact = 0
-            tb = co.k * (tw + co.half) + co.c * (w / co.n - wp)
+            tb = k * (tw + half) + c * (w / n - wp)
         else:
             contact = 1
             tb = 0.0
         flow = 1 if tb * w < 0 else 0
         if enable:
-            drive = co.vs * duty - co.r * i - co.ke * w
-            if i >= co.icl and drive > 0:
+            bridge = B_ON
+            # The chip's limitation holds the current only while the bridge pushes it on.
+            if i >= icl and vs * duty - r * i - ke * w > 0:
                 bridge = B_LIMIT_POS
-            elif i <= -co.icl and drive < 0:
+            elif i <= -icl and vs * duty - r * i - ke * w < 0:
                 bridge = B_LIMIT_NEG
-            else:
-                bridge = B_ON
         elif i > 0:
             bridge = B_DIODE_POS
         elif i < 0:
             bridge = B_DIODE_NEG
         else:
-            emf = co.ke * w
-            bridge = B_DIODE_NEG if emf > co.vd2 else (B_DIODE_POS if emf < -co.vd2 else B_OPEN)
+            emf = ke * w
+            bridge = B_DIODE_NEG if emf > vd2 else (B_DIODE_POS if emf < -vd2 else B_OPEN)
         return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
 
     def _rates(self, key: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
