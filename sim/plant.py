@@ -661,6 +661,8 @@ _FUSED = N_X + 2 + _N_BOUNDS  # columns of BatchPlant's fused product
 # OpenBLAS runs a product of m * n * k below 65536 multiply-adds on one thread (its
 # SMP_THRESHOLD_MIN; the default build multiplies it by 4).
 _BLAS_SINGLE_THREAD = 65536
+# BatchPlant._fused of shared-parameter plants: (coefficients, h_s, levels, slot) -> (7, 21).
+_FUSED_SHARED: dict[tuple[Coefficients, float, int, int], np.ndarray] = {}
 
 
 class BatchPlant:
@@ -697,8 +699,8 @@ class BatchPlant:
         self.n_located = 0  # switches located by _locate (the scalar members count theirs)
         # Transposed Phi of every (mode, level) slot _locate has used, stacked for gathers.
         self._slot_row = np.full(N_MODES * 64, -1, dtype=np.int64)
-        self._stack_list: list[np.ndarray] = []
-        self._stack = np.empty((0, N_X + 2, N_X))
+        self._stack = np.empty((0, N_X + 2, _FUSED))
+        self._stack_used = 0
         self._fused_mats: dict[int, np.ndarray] = {}
         self._last_out = np.empty((0, _FUSED))
         self._boundaries = _boundary_columns(self.co)
@@ -723,21 +725,31 @@ class BatchPlant:
             self._phi[slot] = mat
         return mat
 
-    def _fused(self, key: int) -> np.ndarray:
-        """The whole step of mode ``key`` as one product ``[x; duty; 1] @ F``: shared
-        ``F`` (7, 21) or per member (N, 7, 21). Columns 0-4 are ``Phi^T`` (the new state),
-        5 and 6 give 0 and 1 (the next step writes its duty into column 5 and multiplies
-        the same rows again), 7-20 the end state's boundary columns (``_BOUNDS``)."""
-        mat = self._fused_mats.get(key)
+    def _fused(self, key: int, level: int = 0) -> np.ndarray:
+        """The step of mode ``key`` over ``h / 2**level`` as one product ``[x; duty; 1] @
+        F``: shared ``F`` (7, 21) or per member (N, 7, 21). Columns 0-4 are ``Phi^T`` (the
+        new state), 5 and 6 give 0 and 1 (the next step writes its duty into column 5 and
+        multiplies the same rows again), 7-20 the end state's boundary columns
+        (``_boundary_columns``)."""
+        slot = key * 64 + level
+        mat = self._fused_mats.get(slot)
         if mat is None:
-            phi_t = self._phi_t(key, 0)
-            c, c0 = self._boundaries
-            z = phi_t @ c
-            z[..., N_X + 1, :] += c0  # the last entry of [x; duty; 1] is 1
-            carry = np.zeros(phi_t.shape[:-1] + (2,))
-            carry[..., N_X + 1, 1] = 1.0
-            mat = np.ascontiguousarray(np.concatenate([phi_t, carry, z], axis=-1))
-            self._fused_mats[key] = mat
+            # Shared parameters: also shared across plants (every run builds a new one).
+            shared = None if self.per_member else (self.co, self.h_s, self.event_levels, slot)
+            mat = _FUSED_SHARED.get(shared) if shared else None
+            if mat is None:
+                phi_t = self._phi_t(key, level)
+                c, c0 = self._boundaries
+                z = phi_t @ c
+                z[..., N_X + 1, :] += c0  # the last entry of [x; duty; 1] is 1
+                carry = np.zeros(phi_t.shape[:-1] + (2,))
+                carry[..., N_X + 1, 1] = 1.0
+                mat = np.ascontiguousarray(np.concatenate([phi_t, carry, z], axis=-1))
+                if shared:
+                    if len(_FUSED_SHARED) >= _LADDERS_MAX:
+                        _FUSED_SHARED.clear()  # bounded, as _LADDERS
+                    _FUSED_SHARED[shared] = mat
+            self._fused_mats[slot] = mat
         return mat
 
     def _apply(self, xa: np.ndarray, keys: np.ndarray) -> np.ndarray:
@@ -770,14 +782,19 @@ class BatchPlant:
         return out
 
     def _stacked(self, slots: np.ndarray) -> np.ndarray:
-        """Transposed ``Phi`` of every (mode, level) slot in ``slots``: (M, 7, 5)."""
+        """``_fused`` of every (mode, level) slot in ``slots`` (shared parameters): (M, 7, 21)."""
         rows = self._slot_row[slots]
         missing = rows < 0
         if missing.any():
             for slot in np.unique(slots[missing]).tolist():
-                self._slot_row[slot] = len(self._stack_list)
-                self._stack_list.append(self._phi_t(slot // 64, slot % 64))
-            self._stack = np.stack(self._stack_list)
+                used = self._stack_used
+                if used == self._stack.shape[0]:  # grow by doubling: no copy per new slot
+                    grown = np.empty((max(64, 2 * used), N_X + 2, _FUSED))
+                    grown[:used] = self._stack[:used]
+                    self._stack = grown
+                self._stack[used] = self._fused(slot // 64, slot % 64)
+                self._slot_row[slot] = used
+                self._stack_used = used + 1
             rows = self._slot_row[slots]
         return self._stack[rows]
 
@@ -813,8 +830,14 @@ class BatchPlant:
             xa[:, :N_X] = x[live]
             xa[:, N_X] = d
             xa[:, N_X + 1] = 1.0
-            xn = np.einsum("nj,nji->ni", xa, self._stacked(k0 * 64 + lv))
-            k1 = mode_keys(xn, d, e, co)
+            out = np.einsum("nj,nji->ni", xa, self._stacked(k0 * 64 + lv))
+            xn = out[:, :N_X]
+            # End modes from the boundary signs (as in update); mode_keys where the bridge
+            # is off or a current reached I_CL.
+            k1 = _KEY_OF_SIGNS[((out[:, N_X + 2 :] > 0.0) @ _SIGN_WEIGHTS).astype(np.intp)]
+            other = (k1 < 0) | ~e
+            if other.any():
+                k1[other] = mode_keys(xn[other], d[other], e[other], co)
             switched = k1 != k0
             final = (lv >= levels) | (budget[live] <= 0)
             halve = switched & ~final
