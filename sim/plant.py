@@ -697,7 +697,7 @@ class BatchPlant:
         self.event_levels = int(event_levels)
         self.split_budget = 4 * self.event_levels + 8
         self.n_located = 0  # switches located by _locate (the scalar members count theirs)
-        # Transposed Phi of every (mode, level) slot _locate has used, stacked for gathers.
+        # _fused of every (mode, level) slot _locate has used, stacked for gathers.
         self._slot_row = np.full(N_MODES * 64, -1, dtype=np.int64)
         self._stack = np.empty((0, N_X + 2, _FUSED))
         self._stack_used = 0
