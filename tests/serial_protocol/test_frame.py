@@ -7,7 +7,7 @@ import math
 import struct
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from serial_protocol import frame
@@ -372,7 +372,12 @@ def test_truncated_frame_does_not_swallow_the_next(msgs, data):
     first = encode(msgs[0], 0)
     cut = data.draw(st.integers(frame.HEADER_BYTES, len(first) - 1))
     rest = b"".join(encode(m, k + 1) for k, m in enumerate(msgs[1:]))
-    out, decoder = decode_all(first[:cut] + rest)
+    stream = first[:cut] + rest
+    # If the bytes that follow the cut happen to equal the ones cut off (e.g. a CRC byte of
+    # 0xA5 followed by the next frame's sync byte), the stream holds the first frame intact:
+    # nothing was truncated, and decoding it is right.
+    assume(not stream.startswith(first))
+    out, decoder = decode_all(stream)
     assert _same(out, msgs[1:])
 
 
