@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import can
+from can.util import channel2int
 
 from serial_protocol.exceptions import LinkError
 from serial_protocol.frame import decode_payload, encode_payload, payload_size_of_type
@@ -196,7 +197,7 @@ class CanLink:
             self.frames_out += 1
             if self._logger is not None:
                 out.is_rx = False
-                self._logger.on_message_received(out)
+                self._log(out)
 
     def poll(self, timeout_s: float) -> list[Message | Malformed]:
         """Wait up to ``timeout_s`` for frames; return the messages they complete."""
@@ -211,13 +212,22 @@ class CanLink:
         frame = self.bus.recv(timeout=max(0.0, timeout_s))
         while frame is not None:
             if self._logger is not None:
-                self._logger.on_message_received(frame)
+                self._log(frame)
             if not frame.is_extended_id and not frame.is_remote_frame:
                 got = feed(frame.arbitration_id, bytes(frame.data))
                 if got is not None:
                     out.append(got)
             frame = self.bus.recv(timeout=0.0)
         return out
+
+    def _log(self, frame: can.Message) -> None:
+        # BLF stores the channel as a 16-bit number parsed from the channel name's trailing
+        # digits (python-can's channel2int); a name such as "bench-4117297" would overflow it
+        # and make the writer raise, so such a channel is logged as "no channel".
+        number = channel2int(frame.channel)
+        if number is not None and not 0 <= number < 0xFFFF:
+            frame.channel = None
+        self._logger.on_message_received(frame)
 
     def close(self) -> None:
         """Stop the log writer and shut the bus down."""

@@ -173,9 +173,14 @@ def test_client_over_the_virtual_bus():
         assert pc.reassembler.stats.reassembly_errors == 0
 
 
-@pytest.mark.parametrize("suffix", [".asc", ".blf"])
-def test_frames_are_logged_with_python_can_writers(tmp_path, suffix):
-    channel = _channel()
+@pytest.mark.parametrize(
+    ("suffix", "channel_tail"),
+    # A channel name ending in a number too large for BLF's 16-bit channel field used to make
+    # python-can's BLF writer raise struct.error (uuid names end in digits at random).
+    [(".asc", "x"), (".blf", "x"), (".blf", "-4117297"), (".asc", "-4117297")],
+)
+def test_frames_are_logged_with_python_can_writers(tmp_path, suffix, channel_tail):
+    channel = _channel() + channel_tail
     path = tmp_path / f"run{suffix}"
     msgs = [ONE_OF_EACH[12], ONE_OF_EACH[13], ONE_OF_EACH[18]]
     with CanLink.open("virtual", channel, log_path=str(path)) as pc:
