@@ -244,6 +244,11 @@ class ArrayLaw(LawBase):
             steps = (duty_q * self.arr + (1 << 15)) >> fx.SIG_FRAC_BITS
         else:
             steps = np.round(u / self.supply_v * self.arr).astype(np.int64)
+        return self._apply(steps, i_meas, enabled)
+
+    def _apply(self, steps: np.ndarray, i_meas: np.ndarray, enabled) -> np.ndarray:
+        """Shared tail of both current-loop paths: the compute-delay pipeline, the bridge
+        enable, and the duty on the timer grid."""
         if self.delay:
             out = self._pipe[self._pipe_i].copy()
             self._pipe[self._pipe_i] = steps
@@ -334,20 +339,7 @@ class ArrayLaw(LawBase):
             u = np.where(regen, c, u)
         self._i_i = clip(i_i, ul)
         steps = np.round(clip(u, ul) / self.supply_v * self.arr).astype(np.int64)
-        if self.delay:
-            out = self._pipe[self._pipe_i].copy()
-            self._pipe[self._pipe_i] = steps
-            self._pipe_i = (self._pipe_i + 1) % self.delay
-        else:
-            out = steps
-        self._imeas = i_meas
-        enabled = np.asarray(enabled, dtype=bool)
-        if not enabled.all():
-            out = out * enabled
-            self.reset_control(~enabled)
-        self._steps = out
-        self.duty = out / self.arr
-        return self.duty
+        return self._apply(steps, i_meas, enabled)
 
     # -- float views of the state (axis units)
     @property
