@@ -44,6 +44,12 @@ def clip(x: Any, limit: Any) -> Any:
 class LawBase:
     """Constants every implementation derives from the parameters, and its run-time gains."""
 
+    def _require_scalar_gains(self) -> None:
+        """The single-axis laws take float gains; (N,) arrays belong to ``ArrayLaw``."""
+        for name, value in self.gains.items():
+            if isinstance(value, np.ndarray):
+                raise ValueError(f"{name} = {value!r}: array gains need batch=N")
+
     def _init_common(self, params: FirmwareParams) -> None:
         servo, cur = params.servo, params.current
         self.dt_s = servo.dt_s

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from firmware_model.laws.common import HALF_REV, REV, LawBase
 from firmware_model.params import FirmwareParams
 from firmware_model.units import AXIS_DEG_PER_COUNT
@@ -22,9 +20,7 @@ class ScalarLaw(LawBase):
 
     def __init__(self, params: FirmwareParams) -> None:
         self._init_common(params)
-        for name, value in self.gains.items():
-            if isinstance(value, np.ndarray):
-                raise ValueError(f"{name} = {value!r}: array gains need batch=N")
+        self._require_scalar_gains()
         self._derive()
         self.reset(0)
 

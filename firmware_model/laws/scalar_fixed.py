@@ -3,8 +3,6 @@ with ``batch=None`` (see ``firmware_model/fixedpoint.py`` for the formats)."""
 
 from __future__ import annotations
 
-import numpy as np
-
 from firmware_model import fixedpoint as fx
 from firmware_model.laws.common import HALF_REV, Q_DEG_PER_COUNT, REV, LawBase
 from firmware_model.params import FirmwareParams
@@ -41,9 +39,7 @@ class ScalarFixedLaw(LawBase):
 
     def __init__(self, params: FirmwareParams) -> None:
         self._init_common(params)
-        for name, value in self.gains.items():
-            if isinstance(value, np.ndarray):
-                raise ValueError(f"{name} = {value!r}: array gains need batch=N")
+        self._require_scalar_gains()
         self._derive()
         self.reset(0)
 
