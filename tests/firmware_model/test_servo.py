@@ -10,7 +10,12 @@ import pytest
 
 from firmware_model import fixedpoint as fx
 from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
-from firmware_model.params import CurrentLoopGains, FirmwareParams, ServoParams
+from firmware_model.params import (
+    CurrentLoopGains,
+    FirmwareParams,
+    ServoParams,
+    VelocityLoopGains,
+)
 from firmware_model.units import AXIS_DEG_PER_COUNT
 
 
@@ -333,3 +338,10 @@ def test_resync_restarts_the_observer_on_the_reading(law_class):
         x += 120.0
         law.estimate(_counts(x + 3000))
         assert abs(law.innovation_counts) <= 2
+
+
+@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
+def test_single_axis_laws_refuse_array_gains(law_class):
+    params = FirmwareParams(velocity=VelocityLoopGains(kp_a_per_dps=[0.05, 0.06]))
+    with pytest.raises(ValueError, match="array gains need batch=N"):
+        law_class(params)
