@@ -118,7 +118,11 @@ class RunLog:
 
 class RunResult:
     """What ``run`` returns: the log, the bytes the PC received, what it decodes from them
-    (decoded on first use, in one pass) and the link counters.
+    (decoded on first use) and the link counters.
+
+    The PC's decode comes two ways, from the same bytes with the same decoder: as message
+    objects (``messages``, ``telemetry``) or with the telemetry as columns
+    (``telemetry_arrays``, ``replies``), which skips building one ``Telemetry`` per tick.
 
     Attributes:
         log: the ``RunLog``.
@@ -141,7 +145,12 @@ class RunResult:
         self.firmware_counters = dict(firmware_counters or {})
         self._uart_link = dict(uart_link)
         self._messages: tuple[Any, ...] | None = None
+        self._columns: tuple[dict[str, np.ndarray], tuple[Any, ...]] | None = None
         self._decoder_stats: dict[str, int] = {}
+
+    def _keep_stats(self, decoder: frame.Decoder) -> None:
+        stats = dataclasses.asdict(decoder.stats())
+        self._decoder_stats = {"pc_decoder_" + k: v for k, v in stats.items()}
 
     @property
     def messages(self) -> tuple[Any, ...]:
@@ -149,14 +158,21 @@ class RunResult:
         if self._messages is None:
             decoder = frame.Decoder()
             self._messages = tuple(decoder.feed(self.pc_bytes))
-            stats = dataclasses.asdict(decoder.stats())
-            self._decoder_stats = {"pc_decoder_" + k: v for k, v in stats.items()}
+            self._keep_stats(decoder)
         return self._messages
+
+    def _decoded_columns(self) -> tuple[dict[str, np.ndarray], tuple[Any, ...]]:
+        if self._columns is None:
+            decoder = frame.Decoder()
+            columns, others = decoder.feed_columns(self.pc_bytes)
+            self._columns = (columns, tuple(others))
+            self._keep_stats(decoder)
+        return self._columns
 
     @property
     def link(self) -> dict[str, int]:
         """UART counters of both directions and the PC decoder's counters."""
-        self.messages  # noqa: B018 - decodes on first use
+        self._decoded_columns()
         return {**self._uart_link, **self._decoder_stats}
 
     @property
@@ -165,13 +181,13 @@ class RunResult:
 
     @property
     def replies(self) -> tuple[Any, ...]:
-        return tuple(m for m in self.messages if not isinstance(m, Telemetry))
+        """Every decoded message but the telemetry (replies, fault reports, ``Malformed``)."""
+        return self._decoded_columns()[1]
 
     def telemetry_arrays(self) -> dict[str, np.ndarray]:
-        """Decoded telemetry as arrays, one per ``Telemetry`` field."""
-        tel = self.telemetry
-        names = [f.name for f in dataclasses.fields(Telemetry)]
-        return {n: np.array([getattr(t, n) for t in tel]) for n in names}
+        """Decoded telemetry as arrays, one per ``Telemetry`` field (``tick``, ``state`` and
+        ``fault`` int64, the rest float64), in the order received."""
+        return {k: v.copy() for k, v in self._decoded_columns()[0].items()}
 
 
 # ------------------------------------------------------------------------ overrides

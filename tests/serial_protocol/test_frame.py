@@ -6,6 +6,7 @@ import dataclasses
 import math
 import struct
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
@@ -438,3 +439,63 @@ def _same(got: list, expected: list) -> bool:
             if x != y and not (isinstance(x, float) and math.isnan(x) and math.isnan(y)):
                 return False
     return True
+
+
+# ------------------------------------------------------------------ columns
+
+
+def _as_columns(messages: list) -> tuple[dict[str, list], list]:
+    """What ``feed_columns`` must give for what ``feed`` gave: the telemetry as columns."""
+    tel = [m for m in messages if isinstance(m, Telemetry)]
+    names = [f.name for f in dataclasses.fields(Telemetry)]
+    return {n: [getattr(t, n) for t in tel] for n in names}, [
+        m for m in messages if not isinstance(m, Telemetry)
+    ]
+
+
+@PROPERTY
+@given(st.lists(MESSAGES, min_size=1, max_size=12), st.data())
+def test_feed_columns_is_feed_with_telemetry_as_columns(msgs, data):
+    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
+    noise = data.draw(st.binary(max_size=40))
+    where = data.draw(st.integers(0, len(raw)))
+    raw = raw[:where] + noise + raw[where:]
+    objects = Decoder()
+    expected_columns, expected_others = _as_columns(objects.feed(raw))
+    columns = Decoder()
+    got_columns, got_others = columns.feed_columns(raw)
+    assert list(got_columns) == list(expected_columns)
+    for name, values in expected_columns.items():
+        column = got_columns[name]
+        assert column.shape == (len(values),)
+        assert column.dtype == (np.int64 if name in ("tick", "state", "fault") else np.float64)
+        # Bit for bit the values the objects carry (wire / scale).
+        assert column.tolist() == [float(v) if column.dtype == float else int(v) for v in values]
+    assert _same(got_others, expected_others)
+    assert columns.stats() == objects.stats()
+    assert columns.pending_bytes == objects.pending_bytes
+
+
+def test_feed_columns_across_chunks_and_bad_codes():
+    msgs, frames = stream(5)
+    bad = bytearray(frames[2])
+    bad[frame.HEADER_BYTES + 24] = 0xEE  # state code out of range: Malformed, as feed says
+    body = bytes(bad[2:-2])
+    bad[-2:] = frame.crc16(body).to_bytes(2, "little")
+    raw = frames[0] + frames[1] + bytes(bad) + frames[3] + frames[4]
+    decoder = Decoder()
+    first, others_1 = decoder.feed_columns(raw[:50])  # a frame and a half
+    second, others_2 = decoder.feed_columns(raw[50:])
+    assert first["tick"].tolist() == [0]
+    assert second["tick"].tolist() == [1, 3, 4]
+    assert second["pos_deg"].tolist() == [0.25, 0.75, 1.0]
+    assert others_1 == []
+    assert [type(m) for m in others_2] == [Malformed]
+    assert others_2[0].code == NackCode.OUT_OF_RANGE
+    assert decoder.stats().malformed == 1 and decoder.stats().frames == 5
+
+
+def test_feed_columns_of_nothing():
+    columns, others = Decoder().feed_columns(b"")
+    assert others == []
+    assert all(c.shape == (0,) for c in columns.values()) and len(columns) == 9
