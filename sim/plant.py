@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from sim import plant_kernel
 from sim.drivetrain import belt_torque_nm, load_factor
 from sim.motor import friction_torque_nm
 from sim.params import PlantParams
@@ -355,49 +356,9 @@ def _derivative_one(x: np.ndarray, duty: float, enable: bool, params: PlantParam
     return np.array([di, w, (m.kt_nm_a * i - fm - g * tb) / m.j_kgm2, rate, (tb - fp) / pl.j_kgm2])
 
 
-def _region(v: float, edge: float) -> int:
-    return 2 if v > edge else (0 if v < -edge else 1)
-
-
-def _hermite_leaves(p0: float, p1: float, m0: float, m1: float, edge: float) -> bool:
-    """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has an
-    interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
-    than its ends (which share one)."""
-    # Ends far from both edges compared with the change over the step: no excursion.
-    reach = abs(m0) + abs(m1) + abs(p1 - p0)
-    d0 = abs(p0) - edge
-    d1 = abs(p1) - edge
-    if (d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach):
-        return False
-    region = _region(p0, edge)
-    a = 6.0 * (p0 - p1) + 3.0 * (m0 + m1)
-    b = -6.0 * (p0 - p1) - 4.0 * m0 - 2.0 * m1
-    c = m0
-    roots: tuple[float, ...]
-    if abs(a) < 1e-300:
-        roots = (-c / b,) if b else ()
-    else:
-        disc = b * b - 4.0 * a * c
-        if disc < 0:
-            return False
-        q = math.sqrt(disc)
-        roots = ((-b - q) / (2.0 * a), (-b + q) / (2.0 * a))
-    for s in roots:
-        if 0.0 < s < 1.0:
-            s2, s3 = s * s, s * s * s
-            v = (
-                (2 * s3 - 3 * s2 + 1) * p0
-                + (s3 - 2 * s2 + s) * m0
-                + (-2 * s3 + 3 * s2) * p1
-                + (s3 - s2) * m1
-            )
-            if _region(v, edge) != region:
-                return True
-    return False
-
-
 class ScalarPlant:
-    """The N = 1 plant on plain Python floats (the fast path of the loop).
+    """The N = 1 plant on Python floats, stepped by a compiled kernel (the fast path of the
+    loop; ``sim.plant_kernel``).
 
     ``update(t_s, x, u) -> x_next`` advances a list of 5 floats by ``h_s`` with
     ``u = (duty, enable)`` held. It returns a new list and never changes ``x``. The object
@@ -419,23 +380,18 @@ class ScalarPlant:
         # would take 2**levels steps. Past the budget a step is accepted in its start mode
         # (the dynamics on both sides of such a boundary agree there).
         self.split_budget = 4 * self.event_levels + 8
-        self._rate_rows: dict[int, tuple[tuple[float, ...], tuple[float, ...]]] = {}
-        self._rate_cache: tuple[Any, ...] = (None, -1, 0.0, 0.0)
         self._g_max = 1.0 / (self.co.n * self.co.eta)
-        co = self.co
-        self._key_consts = (
-            co.wbm, co.wbp, co.half, co.k, co.c, co.n, co.vs, co.r, co.ke, co.icl, co.vd2,
-        )  # fmt: skip
-        self._gate = (
-            co.inv_n, co.half, co.k, co.c, co.vs, co.ke, co.r, co.kt, co.tcm, co.bm,
-            self._g_max, co.jm, co.wbm, co.tcp, co.bp, co.jp, co.wbp,
-        )  # fmt: skip
+        # The tables of the compiled step (sim.plant_kernel), filled as modes are met.
+        self._consts = plant_kernel.pack_consts(self.co, self._g_max, self.h_s)
+        self._slots = np.full(N_MODES, -1, dtype=np.int64)
+        self._phis = np.empty((0, self.event_levels + 1, N_X, N_X + 2))
+        self._rates = np.empty((0, 2, N_X + 2))
+        self._n_loaded = 0
+        self._step = plant_kernel.step
         # BatchPlant turns this off for the members it hands over (batch semantics).
         self.check_excursions = True
         self._last_x: list[float] | None = None
         self._last_mech = 0
-        self._end_key = 0
-        self._splits = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
         """``Phi`` of mode ``key`` over ``h_s / 2**level`` as nested tuples (memoised)."""
@@ -450,160 +406,65 @@ class ScalarPlant:
 
     def key(self, x: list[float], duty: float, enable: bool) -> int:
         """Mode key of state ``x`` under input (duty, enable); same rules as ``mode_keys``."""
-        wbm, wbp, half, k, c, n, vs, r, ke, icl, vd2 = self._key_consts
         i, _, w, tw, wp = x
-        fm = 2 if w > wbm else (0 if w < -wbm else 1)
-        fp = 2 if wp > wbp else (0 if wp < -wbp else 1)
-        if tw > half:
-            contact = 2
-            tb = k * (tw - half) + c * (w / n - wp)
-        elif tw < -half:
-            contact = 0
-            tb = k * (tw + half) + c * (w / n - wp)
-        else:
-            contact = 1
-            tb = 0.0
-        flow = 1 if tb * w < 0 else 0
-        if enable:
-            bridge = B_ON
-            # The chip's limitation holds the current only while the bridge pushes it on.
-            if i >= icl and vs * duty - r * i - ke * w > 0:
-                bridge = B_LIMIT_POS
-            elif i <= -icl and vs * duty - r * i - ke * w < 0:
-                bridge = B_LIMIT_NEG
-        elif i > 0:
-            bridge = B_DIODE_POS
-        elif i < 0:
-            bridge = B_DIODE_NEG
-        else:
-            emf = ke * w
-            bridge = B_DIODE_NEG if emf > vd2 else (B_DIODE_POS if emf < -vd2 else B_OPEN)
-        return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+        return plant_kernel.key(float(i), float(w), float(tw), float(wp), float(duty),
+                                bool(enable), self._consts)  # fmt: skip
 
-    def _rates(self, key: int) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Rows of ``[A | B | e]`` for the motor and platter accelerations in mode ``key``."""
-        rows = self._rate_rows.get(key)
-        if rows is None:
-            a, b, e = affine(key, self.co)
-            rows = tuple(tuple(float(v) for v in (*a[r], b[r], e[r])) for r in (VEL, PVEL))
-            self._rate_rows[key] = rows
-        return rows
-
-    def _excursion(self, x: list[float], xn: list[float], key: int, h: float) -> bool:
-        """Whether a boundary was crossed and re-crossed inside a step whose start and end
-        share a mode (a velocity dipping into a friction band and out, a short trip
-        through the backlash gap). Each boundary variable (motor speed, platter speed,
-        twist) is interpolated by the cubic Hermite through its values and rates at both
-        ends; an interior extremum on the other side of a boundary calls for halving.
-
-        A speed whose ends are farther from its band than ``h`` times a bound on its
-        acceleration cannot reach the band and is not interpolated: the motor's bound uses
-        the largest current the armature can approach, ``(V_s + |K_e w|) / R``; the
-        platter's twice the belt torque at the ends plus its friction."""
-        # One tuple unpack instead of ~25 attribute loads: this runs every N = 1 step.
-        inv_n, half, k, c, vs, ke, r, kt, tcm, bm, g_max, jm, wbm, tcp, bp, jp, wbp = self._gate
-        i0, _, w0, t0, p0 = x
-        i1, _, w1, t1, p1 = xn
-        r0 = w0 * inv_n - p0
-        r1 = w1 * inv_n - p1
-        ar0, ar1 = abs(r0), abs(r1)
-        at0, at1 = abs(t0), abs(t1)
-        # Twist: the distance gate of _hermite_leaves inlined (it almost always holds).
-        reach = (ar0 + ar1) * h + abs(t1 - t0)
-        d0 = at0 - half
-        d1 = at1 - half
-        if not ((d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach)) and (
-            _hermite_leaves(t0, t1, r0 * h, r1 * h, half)
-        ):
-            return True
-        # The bounds below as written with max(); conditional expressions are cheaper.
-        aw0, aw1 = abs(w0), abs(w1)
-        wmax = aw0 if aw0 > aw1 else aw1
-        tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
-        i_bound = (vs + ke * wmax) / r
-        ai0, ai1 = abs(i0), abs(i1)
-        ai = ai0 if ai0 >= ai1 else ai1
-        if ai > i_bound:
-            i_bound = ai
-        a_m = (kt * i_bound + tcm + bm * wmax + tbmax * g_max) / jm
-        gate_m = wbm + h * a_m
-        check_m = aw0 <= gate_m or aw1 <= gate_m
-        ap0, ap1 = abs(p0), abs(p1)
-        a_p = (2.0 * tbmax + tcp + bp * (ap0 if ap0 > ap1 else ap1)) / jp
-        gate_p = wbp + h * a_p
-        check_p = ap0 <= gate_p or ap1 <= gate_p
-        if not (check_m or check_p):
-            self._rate_cache = (None, -1, 0.0, 0.0)
-            return False
-        rv, rp = self._rates(key)
-        cache = self._rate_cache
-        if cache[0] is x and cache[1] == key:
-            wd0, pd0 = cache[2], cache[3]
-        else:
-            wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
-            pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
-        wd1 = rv[0] * i1 + rv[2] * w1 + rv[3] * t1 + rv[4] * p1 + rv[6]
-        pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
-        # The end's rates are the next step's start rates (same state object, same mode).
-        self._rate_cache = (xn, key, wd1, pd1)
-        return (check_m and _hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)) or (
-            check_p and _hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
-        )
+    def _load(self, key: int) -> None:
+        """Put mode ``key``'s matrices into the kernel's tables (``sim.plant_kernel``)."""
+        row = self._n_loaded
+        if row == self._phis.shape[0]:  # grow by doubling
+            grow = max(16, 2 * row)
+            phis = np.empty((grow,) + self._phis.shape[1:])
+            phis[:row] = self._phis[:row]
+            rates = np.empty((grow, 2, N_X + 2))
+            rates[:row] = self._rates[:row]
+            self._phis, self._rates = phis, rates
+        for level in range(self.event_levels + 1):
+            self._phis[row, level] = self.phi(key, level)
+        a, b, e = affine(key, self.co)
+        for j, r in enumerate((VEL, PVEL)):
+            self._rates[row, j, :N_X] = a[r]
+            self._rates[row, j, N_X] = b[r]
+            self._rates[row, j, N_X + 1] = e[r]
+        self._slots[key] = row
+        self._n_loaded = row + 1
 
     def update(self, t_s: float, x: list[float], u: tuple[float, bool]) -> list[float]:
-        """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state."""
-        duty, enable = u
-        self._splits = self.split_budget
-        co = self.co
-        if x is self._last_x and enable and -co.icl < x[0] < co.icl:
-            # The state this plant returned last: its mechanical mode is known; with the
-            # bridge on and below I_CL the bridge part is B_ON (0).
-            key = self._last_mech
-        else:
-            key = self.key(x, duty, enable)
-        xn = self._advance(x, duty, enable, key, 0)
-        self._last_x = xn
-        self._last_mech = self._end_key % 54
-        return xn
+        """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state.
 
-    def _advance(self, x: list[float], d: float, en: bool, key: int, level: int) -> list[float]:
-        rows = self._phi.get(key * 64 + level)
-        r0, r1, r2, r3, r4 = rows if rows is not None else self.phi(key, level)
-        i, p, w, tw, wp = x
-        xn = [
-            r0[0] * i + r0[2] * w + r0[3] * tw + r0[4] * wp + r0[5] * d + r0[6],
-            p + r1[0] * i + r1[2] * w + r1[3] * tw + r1[4] * wp + r1[5] * d + r1[6],
-            r2[0] * i + r2[2] * w + r2[3] * tw + r2[4] * wp + r2[5] * d + r2[6],
-            r3[0] * i + r3[2] * w + r3[3] * tw + r3[4] * wp + r3[5] * d + r3[6],
-            r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6],
-        ]
-        key_end = self.key(xn, d, en)
-        self._end_key = key_end
-        if key_end == key and (
-            level >= self.event_levels
-            or self._splits <= 0
-            or not self.check_excursions
-            or not self._excursion(x, xn, key, self.h_s / (1 << level))
-        ):
-            return xn
-        if level >= self.event_levels or self._splits <= 0:
-            # Located to h / 2**levels: accept. A freewheeling current that crossed zero stops
-            # there (the diodes block the reverse current); a current that reached the
-            # bridge's limitation is held at I_CL.
-            self.n_events += 1
-            bridge = key // 54
-            if (bridge == B_DIODE_POS and xn[0] < 0) or (bridge == B_DIODE_NEG and xn[0] > 0):
-                xn[0] = 0.0
-            # Entering the bridge's current limitation: the chopper holds I_CL exactly.
-            limit = key_end // 54
-            if limit == B_LIMIT_POS and xn[0] > self.co.icl:
-                xn[0] = self.co.icl
-            elif limit == B_LIMIT_NEG and xn[0] < -self.co.icl:
-                xn[0] = -self.co.icl
-            return xn
-        self._splits -= 1
-        half = self._advance(x, d, en, key, level + 1)
-        return self._advance(half, d, en, self.key(half, d, en), level + 1)
+        From the mode of ``x``, the whole step is one ``Phi`` product; a step whose end
+        lies in another mode (or, with ``check_excursions``, whose motor speed, platter
+        speed or twist leaves its region and comes back within the step, judged by a cubic
+        Hermite through the values and rates at both ends) is halved, the first half taken
+        in the start mode and the second in the mode where the first ended, recursively
+        down to ``h_s / 2**event_levels`` and within ``split_budget`` halvings; a switch
+        located to the finest level is accepted (a current freewheeling through a diode
+        stops at zero, one that reached the bridge's limitation is held at I_CL). Compiled
+        in ``sim.plant_kernel.step``.
+        """
+        duty, enable = u
+        duty = float(duty)
+        enable = bool(enable)
+        i = x[0]
+        # The state this plant returned last: its mechanical mode is known; with the bridge
+        # on and below I_CL the bridge part is B_ON (0).
+        icl = self.co.icl
+        key = self._last_mech if x is self._last_x and enable and -icl < i < icl else -1
+        while True:
+            r = self._step(
+                i, x[1], x[2], x[3], x[4], duty, enable, key, self.event_levels,
+                self.split_budget, self.check_excursions, self._slots, self._phis,
+                self._rates, self._consts,
+            )  # fmt: skip
+            if r[7] < 0:
+                break
+            self._load(r[7])  # a mode met for the first time: load it and take the step again
+        xn = [r[0], r[1], r[2], r[3], r[4]]
+        self.n_events += r[6]
+        self._last_x = xn
+        self._last_mech = r[5] % 54
+        return xn
 
 
 # Below this many switching members, BatchPlant hands them to the scalar recursion.

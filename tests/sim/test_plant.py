@@ -226,7 +226,7 @@ def test_diode_mode_key_when_current_positive():
 
 
 def test_hidden_excursion_into_a_band_is_detected():
-    from sim.plant import _hermite_leaves
+    from sim.plant_kernel import hermite_leaves as _hermite_leaves
 
     # Ends at -0.3 (outside the +-0.1 band), slopes towards it and back: the cubic peaks at
     # -0.3 + (m0 - m1) / 8 at mid-step.

@@ -1,0 +1,254 @@
+"""``ScalarPlant.update`` compiled: one call per plant step instead of ~40 Python-level
+operations, the same arithmetic in the same order (numba, no ``fastmath``), so the states
+are bit for bit those of the Python recursion (``tests/sim/test_plant_kernel.py``).
+
+The kernel is pure: the matrices come in as tables filled by ``ScalarPlant`` (a mode it
+has not seen yet is returned as ``need`` and the caller loads it and calls again), and the
+event count, the end mode and the new state go out as return values.
+
+Tables (``M`` modes loaded so far, ``L = event_levels``):
+
+- ``slots`` ``(N_MODES,)`` int64: row of a mode in the tables, -1 if not loaded;
+- ``phis`` ``(M, L + 1, 5, 7)``: ``Phi`` of the mode over ``h / 2**level``;
+- ``rates`` ``(M, 2, 7)``: the rows of ``[A | B | e]`` of the motor and platter
+  accelerations (the excursion gate's Hermite slopes);
+- ``consts`` ``(N_CONSTS,)``: the coefficients, at the indices named below.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["N_CONSTS", "hermite_leaves", "key", "pack_consts", "step"]
+
+# Bridge modes (sim.plant's numbering).
+_B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6)
+
+# consts[...] indices.
+(
+    _WBM, _WBP, _HALF, _K, _C, _N, _VS, _R, _KE, _ICL, _VD2, _INV_N, _KT, _TCM, _BM, _G_MAX,
+    _JM, _TCP, _BP, _JP, _H_S,
+) = range(21)  # fmt: skip
+N_CONSTS = 21
+
+
+def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
+    """The ``consts`` array of a ``sim.plant.Coefficients`` (scalar coefficients)."""
+    names = (
+        "wbm", "wbp", "half", "k", "c", "n", "vs", "r", "ke", "icl", "vd2", "inv_n", "kt",
+        "tcm", "bm",
+    )  # fmt: skip
+    values = [float(getattr(co, name)) for name in names]
+    values += [float(g_max), float(co.jm), float(co.tcp), float(co.bp), float(co.jp)]
+    values.append(float(h_s))
+    return np.array(values)
+
+
+@numba.njit(cache=True)
+def key(i, w, tw, wp, duty, enable, kc):
+    """Mode key of the state (``ScalarPlant.key``; the rules of ``sim.plant.mode_keys``)."""
+    wbm, wbp, half, k, c, n = kc[_WBM], kc[_WBP], kc[_HALF], kc[_K], kc[_C], kc[_N]
+    vs, r, ke, icl, vd2 = kc[_VS], kc[_R], kc[_KE], kc[_ICL], kc[_VD2]
+    fm = 2 if w > wbm else (0 if w < -wbm else 1)
+    fp = 2 if wp > wbp else (0 if wp < -wbp else 1)
+    if tw > half:
+        contact = 2
+        tb = k * (tw - half) + c * (w / n - wp)
+    elif tw < -half:
+        contact = 0
+        tb = k * (tw + half) + c * (w / n - wp)
+    else:
+        contact = 1
+        tb = 0.0
+    flow = 1 if tb * w < 0 else 0
+    if enable:
+        bridge = _B_ON
+        if i >= icl and vs * duty - r * i - ke * w > 0:
+            bridge = _B_LIMIT_POS
+        elif i <= -icl and vs * duty - r * i - ke * w < 0:
+            bridge = _B_LIMIT_NEG
+    elif i > 0:
+        bridge = _B_DIODE_POS
+    elif i < 0:
+        bridge = _B_DIODE_NEG
+    else:
+        emf = ke * w
+        bridge = _B_DIODE_NEG if emf > vd2 else (_B_DIODE_POS if emf < -vd2 else _B_OPEN)
+    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+
+
+@numba.njit(cache=True)
+def _region(v, edge):
+    return 2 if v > edge else (0 if v < -edge else 1)
+
+
+@numba.njit(cache=True)
+def hermite_leaves(p0, p1, m0, m1, edge):
+    """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has
+    an interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
+    than its ends (which share one)."""
+    # Ends far from both edges compared with the change over the step: no excursion.
+    reach = abs(m0) + abs(m1) + abs(p1 - p0)
+    d0 = abs(p0) - edge
+    d1 = abs(p1) - edge
+    if (d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach):
+        return False
+    region = _region(p0, edge)
+    a = 6.0 * (p0 - p1) + 3.0 * (m0 + m1)
+    b = -6.0 * (p0 - p1) - 4.0 * m0 - 2.0 * m1
+    c = m0
+    n_roots = 0
+    s0 = s1 = 0.0
+    if abs(a) < 1e-300:
+        if b:
+            s0 = -c / b
+            n_roots = 1
+    else:
+        disc = b * b - 4.0 * a * c
+        if disc < 0:
+            return False
+        q = math.sqrt(disc)
+        s0 = (-b - q) / (2.0 * a)
+        s1 = (-b + q) / (2.0 * a)
+        n_roots = 2
+    for j in range(n_roots):
+        s = s0 if j == 0 else s1
+        if 0.0 < s < 1.0:
+            s2, s3 = s * s, s * s * s
+            v = (
+                (2 * s3 - 3 * s2 + 1) * p0
+                + (s3 - 2 * s2 + s) * m0
+                + (-2 * s3 + 3 * s2) * p1
+                + (s3 - s2) * m1
+            )
+            if _region(v, edge) != region:
+                return True
+    return False
+
+
+@numba.njit(cache=True)
+def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, h, kc):
+    """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
+    end share a mode (a velocity dipping into a friction band and out, a short trip through
+    the backlash gap). Each boundary variable (motor speed, platter speed, twist) is
+    interpolated by the cubic Hermite through its values and rates at both ends (``rates``:
+    the mode's rows of the motor and platter accelerations); an interior extremum
+    on the other side of a boundary calls for halving.
+
+    A speed whose ends are farther from its band than ``h`` times a bound on its
+    acceleration cannot reach the band and is not interpolated: the motor's bound uses the
+    largest current the armature can approach, ``(V_s + |K_e w|) / R``; the platter's twice
+    the belt torque at the ends plus its friction."""
+    inv_n, half, k, c, vs, ke, r = kc[_INV_N], kc[_HALF], kc[_K], kc[_C], kc[_VS], kc[_KE], kc[_R]
+    kt, tcm, bm, g_max, jm, wbm = kc[_KT], kc[_TCM], kc[_BM], kc[_G_MAX], kc[_JM], kc[_WBM]
+    tcp, bp, jp, wbp = kc[_TCP], kc[_BP], kc[_JP], kc[_WBP]
+    r0 = w0 * inv_n - p0
+    r1 = w1 * inv_n - p1
+    ar0, ar1 = abs(r0), abs(r1)
+    at0, at1 = abs(t0), abs(t1)
+    reach = (ar0 + ar1) * h + abs(t1 - t0)
+    d0 = at0 - half
+    d1 = at1 - half
+    if not ((d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach)) and (
+        hermite_leaves(t0, t1, r0 * h, r1 * h, half)
+    ):
+        return True
+    aw0, aw1 = abs(w0), abs(w1)
+    wmax = aw0 if aw0 > aw1 else aw1
+    tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
+    i_bound = (vs + ke * wmax) / r
+    ai0, ai1 = abs(i0), abs(i1)
+    ai = ai0 if ai0 >= ai1 else ai1
+    if ai > i_bound:
+        i_bound = ai
+    a_m = (kt * i_bound + tcm + bm * wmax + tbmax * g_max) / jm
+    gate_m = wbm + h * a_m
+    check_m = aw0 <= gate_m or aw1 <= gate_m
+    ap0, ap1 = abs(p0), abs(p1)
+    a_p = (2.0 * tbmax + tcp + bp * (ap0 if ap0 > ap1 else ap1)) / jp
+    gate_p = wbp + h * a_p
+    check_p = ap0 <= gate_p or ap1 <= gate_p
+    if not (check_m or check_p):
+        return False
+    rv, rp = rates[0], rates[1]
+    wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
+    pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
+    wd1 = rv[0] * i1 + rv[2] * w1 + rv[3] * t1 + rv[4] * p1 + rv[6]
+    pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
+    return (check_m and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)) or (
+        check_p and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
+    )
+
+
+@numba.njit(cache=True)
+def step(i, p, w, tw, wp, d, en, start_key, levels, budget, check, slots, phis, rates, kc):
+    """One plant step of ``h_s`` with ``(d, en)`` held, from mode ``start_key`` (-1: work
+    it out), as ``ScalarPlant._advance`` recurses: halve a step whose end mode differs from
+    its start mode (or that leaves and re-enters it, if ``check``) up to ``levels`` times,
+    within ``budget`` halvings; take the first half in the start mode, the second in the
+    mode where the first ended.
+
+    Returns ``(i, p, w, tw, wp, end_key, n_events, need)``: the new state, the mode key of
+    the last sub-step's end, the switches located to the finest level, and ``need`` = -1;
+    or ``need`` >= 0 when mode ``need`` is not in the tables yet (the other values are then
+    meaningless: load the mode and call again with the same arguments).
+    """
+    h_s = kc[_H_S]
+    icl = kc[_ICL]
+    if start_key < 0:
+        start_key = key(i, w, tw, wp, d, en, kc)
+    # Pending sub-steps (level, start key or -1 for the mode of the state reached), last
+    # in first out: a halved step pushes its second half, then its first.
+    stack_level = np.empty(2 * levels + 2, dtype=np.int64)
+    stack_key = np.empty(2 * levels + 2, dtype=np.int64)
+    stack_level[0] = 0
+    stack_key[0] = start_key
+    top = 1
+    n_events = 0
+    key_end = start_key
+    while top:
+        top -= 1
+        level = stack_level[top]
+        k = stack_key[top]
+        if k < 0:
+            k = key(i, w, tw, wp, d, en, kc)
+        row = slots[k]
+        if row < 0:
+            return i, p, w, tw, wp, key_end, n_events, k
+        r = phis[row, level]
+        r0, r1, r2, r3, r4 = r[0], r[1], r[2], r[3], r[4]
+        ni = r0[0] * i + r0[2] * w + r0[3] * tw + r0[4] * wp + r0[5] * d + r0[6]
+        np_ = p + r1[0] * i + r1[2] * w + r1[3] * tw + r1[4] * wp + r1[5] * d + r1[6]
+        nw = r2[0] * i + r2[2] * w + r2[3] * tw + r2[4] * wp + r2[5] * d + r2[6]
+        ntw = r3[0] * i + r3[2] * w + r3[3] * tw + r3[4] * wp + r3[5] * d + r3[6]
+        nwp = r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6]
+        key_end = key(ni, nw, ntw, nwp, d, en, kc)
+        accept = key_end == k
+        if accept and level < levels and budget > 0 and check:
+            h = h_s / (1 << level)
+            accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, rates[row], h, kc)
+        if not accept and (level >= levels or budget <= 0):
+            # Located to h / 2**levels: accept (ScalarPlant._advance says why).
+            n_events += 1
+            bridge = k // 54
+            if (bridge == _B_DIODE_POS and ni < 0) or (bridge == _B_DIODE_NEG and ni > 0):
+                ni = 0.0
+            limit = key_end // 54
+            if limit == _B_LIMIT_POS and ni > icl:
+                ni = icl
+            elif limit == _B_LIMIT_NEG and ni < -icl:
+                ni = -icl
+            accept = True
+        if accept:
+            i, p, w, tw, wp = ni, np_, nw, ntw, nwp
+            continue
+        budget -= 1
+        stack_level[top] = level + 1
+        stack_key[top] = -1
+        stack_level[top + 1] = level + 1
+        stack_key[top + 1] = k
+        top += 2
+    return i, p, w, tw, wp, key_end, n_events, -1

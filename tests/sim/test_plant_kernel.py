@@ -1,0 +1,158 @@
+"""The compiled plant step (sim.plant_kernel) against its recursive definition.
+
+``plant_kernel.step`` walks the dyadic sub-steps with an explicit stack; the recursion below
+is how ``ScalarPlant._advance`` was written in Python before it was compiled (the same
+rules, written as the docstring of ``ScalarPlant.update`` states them). Both must give the
+same floats, bit for bit, including the halving budget, the located switches and their
+projections (diode blocking, I_CL).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim import plant_kernel
+from sim.params import PlantParams
+from sim.plant import B_DIODE_NEG, B_DIODE_POS, B_LIMIT_NEG, B_LIMIT_POS, N_X, ScalarPlant
+
+DT_S = 0.002
+
+
+class _Recursion:
+    """The Python recursion, on a plant's tables: (state, n_events, end key)."""
+
+    def __init__(self, plant: ScalarPlant) -> None:
+        self.plant = plant
+        self.n_events = 0
+        self.end_key = -1
+        self.splits = 0
+
+    def step(self, x: list[float], d: float, en: bool) -> list[float]:
+        self.splits = self.plant.split_budget
+        return self._advance(x, d, en, self.plant.key(x, d, en), 0)
+
+    def _advance(self, x, d, en, key, level):
+        p = self.plant
+        rows = p.phi(key, level)
+        i, pos, w, tw, wp = x
+        # The kernel's order of additions: ((((r0 i + r2 w) + r3 tw) + r4 wp) + r5 d) + r6,
+        # with pos added first for the angle.
+        xn = [
+            rows[r][0] * i + rows[r][2] * w + rows[r][3] * tw + rows[r][4] * wp
+            + rows[r][5] * d + rows[r][6]
+            for r in range(N_X)
+        ]  # fmt: skip
+        r1 = rows[1]
+        xn[1] = pos + r1[0] * i + r1[2] * w + r1[3] * tw + r1[4] * wp + r1[5] * d + r1[6]
+        key_end = p.key(xn, d, en)
+        self.end_key = key_end
+        h = p.h_s / (1 << level)
+        if key_end == key and (
+            level >= p.event_levels
+            or self.splits <= 0
+            or not p.check_excursions
+            or not self._excursion(x, xn, key, h)
+        ):
+            return xn
+        if level >= p.event_levels or self.splits <= 0:
+            self.n_events += 1
+            bridge = key // 54
+            if (bridge == B_DIODE_POS and xn[0] < 0) or (bridge == B_DIODE_NEG and xn[0] > 0):
+                xn[0] = 0.0
+            limit = key_end // 54
+            if limit == B_LIMIT_POS and xn[0] > p.co.icl:
+                xn[0] = p.co.icl
+            elif limit == B_LIMIT_NEG and xn[0] < -p.co.icl:
+                xn[0] = -p.co.icl
+            return xn
+        self.splits -= 1
+        half = self._advance(x, d, en, key, level + 1)
+        return self._advance(half, d, en, p.key(half, d, en), level + 1)
+
+    def _excursion(self, x, xn, key, h):
+        p = self.plant
+        if p._slots[key] < 0:
+            p._load(key)
+        row = p._slots[key]
+        i0, _, w0, t0, p0 = x
+        i1, _, w1, t1, p1 = xn
+        return plant_kernel._excursion(i0, w0, t0, p0, i1, w1, t1, p1, p._rates[row], h, p._consts)
+
+
+def _states(draw_scale: float, rng: np.random.Generator, n: int) -> np.ndarray:
+    """States near the model's boundaries: friction bands, backlash gap, I_CL."""
+    co = ScalarPlant(PlantParams(), DT_S).co
+    x = np.zeros((n, N_X))
+    x[:, 0] = rng.choice([-1.0, 1.0], n) * rng.uniform(0, 1.1 * co.icl, n) * draw_scale
+    x[:, 1] = rng.uniform(-100, 100, n)
+    x[:, 2] = rng.normal(0, 3 * co.wbm, n) + rng.choice([0.0, 50.0, -50.0], n)
+    x[:, 3] = rng.uniform(-2.5 * co.half, 2.5 * co.half, n)
+    x[:, 4] = rng.normal(0, 3 * co.wbp, n)
+    return x
+
+
+@pytest.mark.parametrize("levels", [0, 3, 20])
+@pytest.mark.parametrize("check", [True, False])
+def test_compiled_step_is_the_recursion_bit_for_bit(levels, check):
+    rng = np.random.default_rng(levels * 2 + check)
+    plant = ScalarPlant(PlantParams(), DT_S, event_levels=levels)
+    plant.check_excursions = check
+    oracle = _Recursion(plant)
+    events = 0
+    for x in _states(1.0, rng, 400):
+        d = float(rng.choice([rng.uniform(-1, 1), 0.0, 1.0, -1.0]))
+        en = bool(rng.random() < 0.8)
+        before = plant.n_events
+        got = plant.update(0.0, x.tolist(), (d, en))
+        oracle.n_events = 0
+        want = oracle.step(x.tolist(), d, en)
+        assert got == want, (x.tolist(), d, en)
+        assert plant.n_events - before == oracle.n_events
+        assert plant._last_mech == oracle.end_key % 54
+        events += oracle.n_events
+    if levels:
+        assert events > 10  # the located-switch branch ran
+
+
+def test_a_tiny_budget_is_spent_as_the_recursion_spends_it():
+    plant = ScalarPlant(PlantParams(), DT_S, event_levels=20)
+    plant.split_budget = 3
+    oracle = _Recursion(plant)
+    rng = np.random.default_rng(7)
+    for x in _states(1.0, rng, 200):
+        got = plant.update(0.0, x.tolist(), (0.3, True))
+        assert got == oracle.step(x.tolist(), 0.3, True)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=1, max_size=40),
+    st.booleans(),
+)
+def test_a_fresh_plant_loads_modes_as_it_meets_them(duties, enable):
+    # The kernel reports a mode it has no matrices for; update() loads it and steps again.
+    # A plant that starts empty must give what a plant that has every mode loaded gives.
+    warm = ScalarPlant(PlantParams(), DT_S, event_levels=6)
+    for key in range(len(warm._slots)):
+        warm._load(key)
+    cold = ScalarPlant(PlantParams(), DT_S, event_levels=6)
+    xw = xc = [2.0, 0.0, 30.0, 0.0, 0.0]
+    for d in duties:
+        xw = warm.update(0.0, xw, (d, enable))
+        xc = cold.update(0.0, xc, (d, enable))
+        assert xw == xc
+    assert 0 < cold._n_loaded <= len(duties) * (2 * 6 + 2)
+
+
+def test_consts_follow_the_coefficients():
+    plant = ScalarPlant(PlantParams(), DT_S)
+    co = dataclasses.asdict(plant.co)
+    kc = plant._consts
+    assert kc.shape == (plant_kernel.N_CONSTS,)
+    assert kc[plant_kernel._ICL] == co["icl"] and kc[plant_kernel._INV_N] == co["inv_n"]
+    assert kc[plant_kernel._JP] == co["jp"] and kc[plant_kernel._H_S] == DT_S
