@@ -16,7 +16,7 @@ boundary"):
    servo tick, board -> PC bytes are buffered for ``pc_read()``.
 
 The N = 1 path works on plain Python floats and appends three items per tick to lists (the
-plant state, the firmware's signals dict, the bridge voltage), turned into columns by
+plant state, the firmware's signals as a row, the bridge voltage), turned into columns by
 ``log()``; the batch path (``batch=N``) keeps ``(N, 5)`` arrays and writes rows of
 preallocated ``(capacity, N)`` log arrays. The scripted PC of ``run`` writes its frames
 with ``pc_write`` at their times, exactly as a PC program would.
@@ -244,7 +244,9 @@ class Simulation:
         seed: seeds the encoder and ADC noise and the UART fault injection.
         overrides: ``{"table.key": value}`` applied to ``bench`` first.
         firmware: a firmware object to use instead of ``firmware_model.firmware.Firmware``
-            (anything with ``servo_tick``, ``current_tick`` and ``signals``).
+            (anything with ``servo_tick``, ``current_tick`` and ``signals``; a
+            ``signal_row()`` giving the signals as a tuple in ``FW_FIELDS`` order is used
+            where it exists).
         record_inputs: keep the ``(duty, enable)`` of every plant step (``inputs()``), e.g.
             to replay a run through ``solve_ivp``.
         keep_log: keep the per-tick log (``log()``). A long-running server (``serve``)
@@ -320,7 +322,7 @@ class Simulation:
             # Per tick: the plant state at the sample, the firmware's signals, the bridge
             # voltage; turned into columns by log().
             self._xs: list[list[float]] = []
-            self._sigs: list[dict[str, Any]] = []
+            self._sigs: list[tuple[Any, ...]] = []
             self._volts: list[float] = []
         else:
             self._cap = 0
@@ -378,7 +380,7 @@ class Simulation:
             x = np.fromiter(chain.from_iterable(self._xs), dtype=float, count=5 * n)
             x = x.reshape(n, 5)
             k = len(FW_FIELDS)
-            rows = chain.from_iterable(map(itemgetter(*FW_FIELDS), self._sigs))
+            rows = chain.from_iterable(self._sigs)
             table = np.fromiter(rows, dtype=float, count=k * n).reshape(n, k)
             cols = {
                 f: table[:, j].astype(np.int64) if f in _INT_FIELDS else table[:, j].copy()
@@ -429,7 +431,14 @@ class Simulation:
         are held in locals for the whole call (attribute loads cost as much as the plant's
         arithmetic at ~10 us per tick); the tick state is stored back on return."""
         fw = self.fw
-        servo_tick, current_tick, signals = fw.servo_tick, fw.current_tick, fw.signals
+        servo_tick, current_tick = fw.servo_tick, fw.current_tick
+        signal_row = getattr(fw, "signal_row", None)
+        if signal_row is None:
+            pick, signals = itemgetter(*FW_FIELDS), fw.signals
+
+            def signal_row() -> tuple[Any, ...]:
+                return pick(signals())
+
         update = self.plant.update
         read_encoder = self.encoder.read
         uart_tx, uart_rx = self.uart_tx, self.uart_rx
@@ -471,7 +480,7 @@ class Simulation:
                     t += h_s
                 tick += 1
                 if keep:
-                    self._sigs.append(signals())
+                    self._sigs.append(signal_row())
                     self._volts.append(d * vs if en else 0.0)
                 # Both UART directions move one tick of bytes (_move_bytes).
                 if pc_out:

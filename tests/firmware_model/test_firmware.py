@@ -502,3 +502,20 @@ def test_a_custom_gain_check_decides_unstable_gains(make_bench):
     assert nacks(b) == [(2, NackCode.UNSTABLE_GAINS)]
     assert seen[0]["kp_v"] == pytest.approx(0.07) and seen[1]["kp_p"] > 0.0
     assert b.fw.law.gains["kp_v"] == pytest.approx(0.07)
+
+
+@pytest.mark.parametrize("batch", [None, 3])
+def test_signal_row_is_signals_in_order(make_bench, batch):
+    from firmware_model.firmware import SIGNAL_NAMES
+    from sim.loop import FW_FIELDS
+
+    assert SIGNAL_NAMES == FW_FIELDS  # the loop logs the row under these names
+    b = make_bench(batch=batch)
+    b.run(300, {5: [move(1, 20.0)]})
+    sig = b.fw.signals()
+    assert list(sig) == list(SIGNAL_NAMES)
+    row = b.fw.signal_row()
+    assert len(row) == len(SIGNAL_NAMES)
+    for name, value in zip(SIGNAL_NAMES, row, strict=True):
+        np.testing.assert_array_equal(value, sig[name])
+    assert sig["vel_dps"] != 0.0 if batch is None else np.all(sig["vel_dps"] != 0.0)
