@@ -300,7 +300,7 @@ class Simulation:
         self._n_total = plant.total_ratio
         if batch is None:
             self.plant: ScalarPlant | BatchPlant = ScalarPlant(plant, self.h_s, levels)
-            self._x: Any = [0.0] * 5
+            self._x: Any = (0.0,) * 5
         else:
             self.plant = BatchPlant(plant, batch, self.h_s, levels)
             self._x = np.zeros((batch, 5))
@@ -321,7 +321,7 @@ class Simulation:
         if batch is None:
             # Per tick: the plant state at the sample, the firmware's signals, the bridge
             # voltage; turned into columns by log().
-            self._xs: list[list[float]] = []
+            self._xs: list[tuple[float, ...]] = []
             self._sigs: list[tuple[Any, ...]] = []
             self._volts: list[float] = []
         else:
@@ -447,11 +447,12 @@ class Simulation:
         adc_noise = self._adc_noise
         vs, dt_s, h_s, multiple = self._vs, self.dt_s, self.h_s, self.multiple
         pc_out, pc_in = self._pc_out, self._pc_in
+        log_x, log_sig, log_volts = self._xs.append, self._sigs.append, self._volts.append
         x, d, en, tick, rx_bytes = self._x, self._duty, self._enable, self.tick, self._rx_for_board
         try:
             for _ in range(n_ticks):
                 if keep:
-                    self._xs.append(x)  # the plant state at the sampling instant (never mutated)
+                    log_x(x)  # the plant state at the sampling instant (never mutated)
                 t = tick * dt_s
                 tx = servo_tick(read_encoder(x), rx_bytes, uart_tx.free)
                 if tx:
@@ -480,8 +481,8 @@ class Simulation:
                     t += h_s
                 tick += 1
                 if keep:
-                    self._sigs.append(signal_row())
-                    self._volts.append(d * vs if en else 0.0)
+                    log_sig(signal_row())
+                    log_volts(d * vs if en else 0.0)
                 # Both UART directions move one tick of bytes (_move_bytes).
                 if pc_out:
                     del pc_out[: uart_rx.write(bytes(pc_out[: uart_rx.free]))]

@@ -27,6 +27,7 @@ plant objects only memoise their matrices. Only ``sim.loop`` owns the clock and 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -361,7 +362,7 @@ class ScalarPlant:
     loop; ``sim.plant_kernel``).
 
     ``update(t_s, x, u) -> x_next`` advances a list of 5 floats by ``h_s`` with
-    ``u = (duty, enable)`` held. It returns a new list and never changes ``x``. The object
+    ``u = (duty, enable)`` held. It returns a new tuple and never changes ``x``. The object
     memoises one ``Phi`` per (mode, halving level); ``n_events`` counts located mode
     switches (statistics only). At most ``split_budget`` halvings are spent per step.
     """
@@ -390,7 +391,7 @@ class ScalarPlant:
         self._step = plant_kernel.step
         # BatchPlant turns this off for the members it hands over (batch semantics).
         self.check_excursions = True
-        self._last_x: list[float] | None = None
+        self._last_x: tuple[float, ...] | None = None
         self._last_mech = 0
 
     def phi(self, key: int, level: int = 0) -> tuple[tuple[float, ...], ...]:
@@ -404,7 +405,7 @@ class ScalarPlant:
             rows = ladder[level]
         return rows
 
-    def key(self, x: list[float], duty: float, enable: bool) -> int:
+    def key(self, x: Sequence[float], duty: float, enable: bool) -> int:
         """Mode key of state ``x`` under input (duty, enable); same rules as ``mode_keys``."""
         i, _, w, tw, wp = x
         return plant_kernel.key(float(i), float(w), float(tw), float(wp), float(duty),
@@ -430,7 +431,7 @@ class ScalarPlant:
         self._slots[key] = row
         self._n_loaded = row + 1
 
-    def update(self, t_s: float, x: list[float], u: tuple[float, bool]) -> list[float]:
+    def update(self, t_s: float, x: Sequence[float], u: tuple[float, bool]) -> tuple[float, ...]:
         """Advance ``x`` by ``h_s`` with ``u = (duty, enable)`` held; returns the new state.
 
         From the mode of ``x``, the whole step is one ``Phi`` product; a step whose end
@@ -460,7 +461,8 @@ class ScalarPlant:
             if r[7] < 0:
                 break
             self._load(r[7])  # a mode met for the first time: load it and take the step again
-        xn = [r[0], r[1], r[2], r[3], r[4]]
+        # A tuple of floats: the garbage collector stops tracking it (a run logs 500 per s).
+        xn = r[:5]
         self.n_events += r[6]
         self._last_x = xn
         self._last_mech = r[5] % 54
