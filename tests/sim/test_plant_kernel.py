@@ -10,6 +10,8 @@ projections (diode blocking, I_CL).
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -156,3 +158,21 @@ def test_consts_follow_the_coefficients():
     assert kc.shape == (plant_kernel.N_CONSTS,)
     assert kc[plant_kernel._ICL] == co["icl"] and kc[plant_kernel._INV_N] == co["inv_n"]
     assert kc[plant_kernel._JP] == co["jp"] and kc[plant_kernel._H_S] == DT_S
+
+
+def test_warm_up_loads_the_signatures_the_plant_calls():
+    # In a fresh interpreter (other tests may have called the kernels with other types):
+    # one specialisation each after warm_up and a plant step, so what warm_up loaded is what
+    # a run uses (a second one would be compiled, ~1.5 s, inside the timed run).
+    code = """
+from sim import plant_kernel
+from sim.params import PlantParams
+from sim.plant import ScalarPlant
+plant_kernel.warm_up(20)
+plant = ScalarPlant(PlantParams(), 0.002, event_levels=20)
+x = plant.update(0.0, (0.0,) * 5, (0.5, True))
+plant.key(x, 0.5, True)
+print(len(plant_kernel.step.signatures), len(plant_kernel.key.signatures))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["1", "1"]
