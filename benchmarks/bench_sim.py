@@ -20,8 +20,11 @@ idle machine). Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import statistics
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -83,6 +86,29 @@ def time_run(exp: Experiment, batch: int | None, repeat: int) -> list[float]:
         walls[-1] += time.perf_counter() - t1
     assert n_tel > 0
     return walls
+
+
+def cold_process(duration_s: float) -> dict[str, float]:
+    """One run in a fresh interpreter, as the CLI does it: wall s of importing the
+    simulator, of loading the compiled kernels (numba's start-up) and of the run (with the
+    first use of every mode's matrices) plus the PC decode."""
+    code = f"""
+import json, sys, time
+t0 = time.perf_counter()
+sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})
+from bench_sim import fig8_experiment
+from sim import plant_kernel
+from sim.loop import run
+t1 = time.perf_counter()
+plant_kernel.warm_up()
+t2 = time.perf_counter()
+res = run(fig8_experiment({duration_s!r}))
+res.telemetry_arrays()
+t3 = time.perf_counter()
+print(json.dumps({{"import_s": t1 - t0, "kernels_s": t2 - t1, "run_s": t3 - t2}}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.splitlines()[-1])
 
 
 def quietest_chunks(
@@ -239,6 +265,14 @@ def main() -> None:
     print(f"[1] 20 s run, N = 1, full firmware: wall median {med:.3f} s (min {best:.3f} s)")
     print(f"    real-time factor median {20 / med:.0f}x (best {20 / best:.0f}x), target 200x;")
     print(f"    {med / 10_000 * 1e6:.1f} us per tick median ({best / 10_000 * 1e6:.1f} best)")
+
+    cold = [cold_process(20.0) for _ in range(3)]
+    med = {k: statistics.median(c[k] for c in cold) for k in cold[0]}
+    print(
+        f"    in a fresh process (median of 3): import {med['import_s']:.2f} s, compiled kernels "
+        f"{med['kernels_s']:.2f} s, first run + decode {med['run_s']:.3f} s "
+        f"({20 / med['run_s']:.0f}x real time)"
+    )
 
     q, m = quietest_chunks(exp20)
     print(
