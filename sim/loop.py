@@ -376,15 +376,28 @@ class Simulation:
             cols["current_a"] = x[:, I_A].copy()
             cols["voltage_v"] = np.array(self._volts, dtype=float)
             return RunLog(**cols)
+        return self._batch_log(copy=True)
+
+    def _batch_log(self, *, copy: bool) -> RunLog:
+        """The batch log so far; ``copy=False`` hands out views of the log buffers instead
+        of copies, for a caller that discards the simulation (``run``). The loop only ever
+        writes rows after ``tick``, so the views never change."""
         n = self.tick
-        cols = {f: a[:n].T.copy() for f, a in self._arrays.items()}
+
+        def columns(rows: np.ndarray) -> np.ndarray:
+            # (n, N) rows -> (N, n) columns: the transposed view, copied in its own memory
+            # order (Fortran), is a plain memcpy; a C-ordered copy would transpose.
+            return np.array(rows.T, order="K") if copy else rows.T
+
+        cols = {f: columns(a[:n]) for f, a in self._arrays.items()}
         x = self._xlog[:n]  # (n, N, 5)
         pos = x[:, :, 1]
-        cols["true_pos_deg"] = (pos * self._deg_per_rad_axis).T.copy()
-        cols["true_vel_dps"] = (x[:, :, VEL] * self._deg_per_rad_axis).T.copy()
-        cols["platter_pos_deg"] = np.degrees(pos / self._n_total - x[:, :, TWIST]).T.copy()
-        cols["motor_pos_rad"] = pos.T.copy()
-        cols["current_a"] = x[:, :, I_A].T.copy()
+        # New (n, N) arrays: their transposes need no copy.
+        cols["true_pos_deg"] = (pos * self._deg_per_rad_axis).T
+        cols["true_vel_dps"] = (x[:, :, VEL] * self._deg_per_rad_axis).T
+        cols["platter_pos_deg"] = np.degrees(pos / self._n_total - x[:, :, TWIST]).T
+        cols["motor_pos_rad"] = columns(pos)
+        cols["current_a"] = columns(x[:, :, I_A])
         cols["t_s"] = np.arange(n) * self.dt_s
         return RunLog(**cols)
 
@@ -588,7 +601,9 @@ def run(
         if progress is not None and (tick % every == 0 or tick == n_ticks):
             progress(tick, n_ticks)
     counters = dict(getattr(sim.fw, "counters", {}))
-    return RunResult(sim.log(), sim.pc_read(), sim.link_stats(), exp, counters)
+    # The simulation ends here: a batch log's buffers become the result's, without copies.
+    log = sim.log() if batch is None else sim._batch_log(copy=False)
+    return RunResult(log, sim.pc_read(), sim.link_stats(), exp, counters)
 
 
 def uart_faults(uart: UartParams) -> FaultInjection | None:

@@ -300,3 +300,42 @@ def test_current_loop_multiple_steps_the_plant_that_many_times_per_tick(bench):
     duty, _ = sim.inputs()
     assert len(duty) == 2 * 750
     assert sim.log().pos_deg[-1] == pytest.approx(90.0, abs=0.1)
+
+
+def test_batch_log_columns_are_copies_of_the_rows_in_tick_order(bench):
+    sim = Simulation(bench, batch=3)
+    sim.step(2)
+    sim.pc_write(frame.encode(Move(1, 10.0, 300.0, 1000.0), 0))
+    rows = {f: [] for f in ("pos_deg", "duty", "state", "motor_pos_rad", "current_a")}
+    for _ in range(150):
+        rows["motor_pos_rad"].append(sim.plant_state[:, 1])  # the state the tick samples
+        rows["current_a"].append(sim.plant_state[:, 0])
+        sim.step(1)
+        sig = sim.fw.signals()
+        for f in ("pos_deg", "duty", "state"):
+            rows[f].append(np.array(sig[f]))
+    log = sim.log()
+    assert len(log) == 152 and log.pos_deg.shape == (3, 152)
+    for f, values in rows.items():
+        column = getattr(log, f)
+        np.testing.assert_array_equal(column[:, 2:], np.array(values).T)
+        assert column.dtype == (np.int64 if f == "state" else float)
+    assert log.pos_deg[0, -1] != 0.0
+    before = sim.log()
+    log.pos_deg[:] = 0.0  # a copy: the simulation's log is unchanged
+    np.testing.assert_array_equal(sim.log().pos_deg, before.pos_deg)
+    sim.step(5)  # later ticks leave the earlier rows as they were
+    np.testing.assert_array_equal(sim.log().duty[:, :152], before.duty)
+
+
+def test_run_hands_over_the_same_batch_log_as_log(tmp_path):
+    exp = load_experiment(_experiment(tmp_path, MOVE.format(target=20.0), duration_s=0.4))
+    res = run(exp, batch=2)
+    sim = Simulation(exp.bench, batch=2)
+    first = math.ceil(exp.commands[0].t_s / sim.dt_s - 1e-9)
+    sim.step(first)
+    sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+    sim.step(len(res.log) - first)
+    log = sim.log()
+    for f in LOG_FIELDS:
+        np.testing.assert_array_equal(getattr(res.log, f), getattr(log, f), err_msg=f)
