@@ -667,6 +667,21 @@ _FUSED_SHARED: dict[tuple[Coefficients, float, int, int], np.ndarray] = {}
 
 
 @numba.njit(cache=True)
+def _same_end_modes(out, keys, key_of_signs):
+    """Whether every member's end mode, read from the signs of the boundary columns of its
+    fused product ``out`` (``BatchPlant._fused``), is its start mode ``keys`` (bridge on; a
+    current at I_CL reads -1, never a start mode)."""
+    for j in range(out.shape[0]):
+        code = 0
+        for b in range(_N_BOUNDS):
+            if out[j, N_X + 2 + b] > 0.0:
+                code |= 1 << b
+        if key_of_signs[code] != keys[j]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
 def _mode_key_one(i, w, tw, wp, duty, enable, consts):
     """``mode_keys`` of one member (the same arithmetic, bit for bit)."""
     wbm, wbp, half, k, c, inv_n, icl, vs, r, ke, vd2 = consts
@@ -961,6 +976,11 @@ class BatchPlant:
         xa[:, N_X] = duty
         out = self._apply(xa, keys)
         xn = out[:, :N_X]
+        if known and _same_end_modes(out, keys, _KEY_OF_SIGNS):
+            # The common case, in one compiled pass: no member switched mode (its keys, all
+            # mechanical, stay the next step's).
+            self._last_x, self._last_out = xn, out
+            return xn
         if known:
             # Mode of the end state from the signs of its boundary columns (one table
             # lookup); -1 where a current reached I_CL (the bridge part needs mode_keys).
