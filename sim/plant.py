@@ -779,14 +779,14 @@ def _locate_members(
 
 
 class BatchPlant:
-    """N plants stepped in lock-step with numpy; parameters scalar or ``(N,)`` per member.
+    """N plants stepped in lock-step; parameters scalar or ``(N,)`` per member.
 
     ``update(t_s, x, u) -> x_next`` with ``x`` of shape ``(N, 5)`` and ``u = (duty (N,),
     enable (N,))``. Members whose mode stays the same over the step (almost all, almost
     always) share one matrix product per mode; the same product gives the end state's
     boundary columns, whose signs give its mode through one table lookup. The members that
     switch mode are halved again: a few by the ``ScalarPlant`` recursion, many (shared
-    parameters) in lock-step by ``_locate``, with the same sub-steps. The Hermite excursion
+    parameters) by the compiled ``_locate``, with the same sub-steps. The Hermite excursion
     check of ``ScalarPlant`` is not run in batch (it would cost more than the step for N
     members).
     """
