@@ -28,6 +28,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
+import numba
 import numpy as np
 
 from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
@@ -460,26 +461,22 @@ class Firmware:
 
     def _check_array(self) -> None:
         law, s = self.law, self.params.safety
-        # Cheap screen first (one reduction per trip); the per-member masks only on a hit.
-        innov = np.abs(law.innovation_counts)
-        stuck = law.stuck_ticks
-        vel = law.vel_dps
-        err = self.sp_pos_deg - law.pos_deg
         following = self._mode != "step"
         watchdog = bool(self._watchdog_ticks) and (
             self.tick - self._last_rx_tick > self._watchdog_ticks
         )
-        if not (
-            innov.max() > s.encoder_jump_counts
-            or (
-                stuck.max() >= s.encoder_stuck_ticks
-                and np.abs(law.vel_ref_dps).max() > s.encoder_stuck_min_vel_dps
-            )
-            or np.abs(vel).max() > s.over_speed_dps
-            or (following and np.abs(err).max() > self.following_error_deg)
-            or watchdog
-        ):
+        # Cheap screen first (one compiled pass); the per-member masks only on a hit.
+        if not watchdog and not _any_trip(
+            law.innovation_counts, law.stuck_ticks, law.vel_ref_dps, law.vel_dps, law.pos_deg,
+            float(self.sp_pos_deg), s.encoder_jump_counts, s.encoder_stuck_ticks,
+            float(s.encoder_stuck_min_vel_dps), float(s.over_speed_dps),
+            float(self.following_error_deg) if following else math.inf,
+        ):  # fmt: skip
             return
+        innov = np.abs(law.innovation_counts)
+        stuck = law.stuck_ticks
+        vel = law.vel_dps
+        err = self.sp_pos_deg - law.pos_deg
         live = self._enabled.copy()
         enc = (innov > s.encoder_jump_counts) | (
             (stuck >= s.encoder_stuck_ticks)
@@ -811,6 +808,24 @@ class Firmware:
             self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
             state, fault,
         )  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _any_trip(
+    innovation_counts, stuck_ticks, vel_ref_dps, vel_dps, pos_deg, sp_pos_deg,
+    jump_counts, stuck_limit_ticks, stuck_min_vel_dps, over_speed_dps, following_error_deg,
+):  # fmt: skip
+    """Whether any member meets an encoder, over-speed or following-error trip condition of
+    ``Firmware._check_array`` (``following_error_deg`` inf: not checked)."""
+    for j in range(pos_deg.shape[0]):
+        if (
+            abs(innovation_counts[j]) > jump_counts
+            or (stuck_ticks[j] >= stuck_limit_ticks and abs(vel_ref_dps[j]) > stuck_min_vel_dps)
+            or abs(vel_dps[j]) > over_speed_dps
+            or abs(sp_pos_deg - pos_deg[j]) > following_error_deg
+        ):
+            return True
+    return False
 
 
 def _first(x: Any) -> float:

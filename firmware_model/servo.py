@@ -8,7 +8,8 @@ one per file):
 * :class:`ScalarFixedLaw`: one axis in saturating int32 Q16.16 / Q8.24 on Python ints
   (``arithmetic = "fixed"``, ``batch=None``).
 * :class:`ArrayLaw`: ``N`` axes in lock-step on numpy arrays of shape ``(N,)``, in float64
-  or in saturating int32 Q-format (``fixed=True``; see ``firmware_model/fixedpoint.py``).
+  (compiled loops over the members, ``laws/array_float.py``) or in saturating int32
+  Q-format (``fixed=True``; see ``firmware_model/fixedpoint.py``).
 
 ``ArrayLaw`` with N = 1 computes bit for bit what the scalar law of the same arithmetic
 computes (tested): the same operations in the same order.

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from sim.params import EncoderParams
@@ -33,8 +34,8 @@ class Encoder:
         self._offset = params.offset_counts
         self._block: list[float] = []
         self._noisy = bool(np.any(self._noise))
-        cpr = self.counts_per_rev
-        self._wrap_mask = cpr - 1 if cpr & (cpr - 1) == 0 else None
+        self._batch_n = 0
+        self._batch_params: tuple[np.ndarray, ...] = ()
 
     def read(self, x: list[float]) -> int:
         """Counts in ``[0, counts_per_rev)`` for a single state list (fast path)."""
@@ -48,16 +49,30 @@ class Encoder:
 
     def read_batch(self, x: np.ndarray) -> np.ndarray:
         """Counts (int64 array (N,)) for states of shape (N, 5)."""
-        # The arithmetic of read(), in place (each numpy call costs more than its work).
-        c = x[:, VEL] * self._latency_s
-        np.subtract(x[:, POS], c, out=c)
-        c *= self._counts_per_rad
-        c += self._offset
-        if self._noisy:
-            c += self._noise * self.rng.standard_normal(x.shape[0])
-        np.floor(c, out=c)
-        counts = c.astype(np.int64)
-        if self._wrap_mask is not None:
-            counts &= self._wrap_mask  # the floored modulo of a power of two
-            return counts
-        return counts % self.counts_per_rev
+        n = x.shape[0]
+        if self._batch_n != n:
+            # The parameters as (N,) arrays for the kernel (each may be scalar or (N,)).
+            self._batch_n = n
+            self._batch_params = tuple(
+                np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (n,)))
+                for v in (self._latency_s, self._offset, self._noise)
+            )
+        draw = self.rng.standard_normal(n) if self._noisy else _NO_DRAW
+        counts = np.empty(n, dtype=np.int64)
+        _read_batch(x, *self._batch_params, draw, self._counts_per_rad, self.counts_per_rev, counts)
+        return counts
+
+
+_NO_DRAW = np.empty(0)
+
+
+@numba.njit(cache=True)
+def _read_batch(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_per_rev, out):
+    """``Encoder.read`` per member (the same operations in the same order); ``draw`` holds
+    one standard normal per member, or nothing for a noiseless encoder."""
+    noisy = draw.shape[0] > 0
+    for j in range(x.shape[0]):
+        c = (x[j, POS] - x[j, VEL] * latency_s[j]) * counts_per_rad + offset_counts[j]
+        if noisy:
+            c += noise_lsb[j] * draw[j]
+        out[j] = np.int64(math.floor(c)) % counts_per_rev  # floored modulo, as Python

@@ -32,6 +32,7 @@ from itertools import chain
 from operator import itemgetter
 from typing import Any
 
+import numba
 import numpy as np
 
 from serial_protocol import frame
@@ -289,7 +290,6 @@ class Simulation:
         levels = bench.loop.event_levels
         self._sense = plant.current_sense
         self._a_per_lsb = float(np.asarray(plant.current_sense.a_per_lsb).flat[0])
-        self._a_per_lsb_batch = plant.current_sense.a_per_lsb
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
         self._adc_noise = plant.current_sense.noise_rms_lsb
         self._adc_noisy = bool(np.any(self._adc_noise))
@@ -331,7 +331,16 @@ class Simulation:
             # The IS pin reads the current in the direction of the applied duty, from the
             # high side only (sim.bridge.sensed_current_a): sign(duty), 0 while disabled.
             self._sense_sign = np.zeros(batch)
-            self._arr_batch = plant.bridge.arr
+            # The bridge voltage of the last current-loop period (the log's voltage_v).
+            self._volt = np.zeros(batch)
+            # Parameters as (N,) arrays for the kernels (each may be scalar or (N,)).
+            per_member = (
+                plant.current_sense.a_per_lsb, self._adc_noise, plant.bridge.arr, self._vs,
+            )  # fmt: skip
+            self._a_per_lsb_n, self._adc_noise_n, self._arr_n, self._vs_n = (
+                np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (batch,)))
+                for v in per_member
+            )
 
     # ---------------------------------------------------------------- public API
     @property
@@ -394,15 +403,28 @@ class Simulation:
             cols["current_a"] = x[:, I_A].copy()
             cols["voltage_v"] = np.array(self._volts, dtype=float)
             return RunLog(**cols)
+        return self._batch_log(copy=True)
+
+    def _batch_log(self, *, copy: bool) -> RunLog:
+        """The batch log so far; ``copy=False`` hands out views of the log buffers instead
+        of copies, for a caller that discards the simulation (``run``). The loop only ever
+        writes rows after ``tick``, so the views never change."""
         n = self.tick
-        cols = {f: a[:n].T.copy() for f, a in self._arrays.items()}
+
+        def columns(rows: np.ndarray) -> np.ndarray:
+            # (n, N) rows -> (N, n) columns: the transposed view, copied in its own memory
+            # order (Fortran), is a plain memcpy; a C-ordered copy would transpose.
+            return np.array(rows.T, order="K") if copy else rows.T
+
+        cols = {f: columns(a[:n]) for f, a in self._arrays.items()}
         x = self._xlog[:n]  # (n, N, 5)
         pos = x[:, :, 1]
-        cols["true_pos_deg"] = (pos * self._deg_per_rad_axis).T.copy()
-        cols["true_vel_dps"] = (x[:, :, VEL] * self._deg_per_rad_axis).T.copy()
-        cols["platter_pos_deg"] = np.degrees(pos / self._n_total - x[:, :, TWIST]).T.copy()
-        cols["motor_pos_rad"] = pos.T.copy()
-        cols["current_a"] = x[:, :, I_A].T.copy()
+        # New (n, N) arrays: their transposes need no copy.
+        cols["true_pos_deg"] = (pos * self._deg_per_rad_axis).T
+        cols["true_vel_dps"] = (x[:, :, VEL] * self._deg_per_rad_axis).T
+        cols["platter_pos_deg"] = np.degrees(pos / self._n_total - x[:, :, TWIST]).T
+        cols["motor_pos_rad"] = columns(pos)
+        cols["current_a"] = columns(x[:, :, I_A])
         cols["t_s"] = np.arange(n) * self.dt_s
         return RunLog(**cols)
 
@@ -529,30 +551,24 @@ class Simulation:
         if tx:
             self.uart_tx.write(tx)
         t = k * self.dt_s
-        arr = self._arr_batch
+        n = self.batch
         for _ in range(self.multiple):
             # sim.bridge.sensed_current_a and adc_counts, with the duty's sign kept from
-            # the last period (the same arithmetic, fewer numpy calls).
-            c = np.maximum(0.0, self._sense_sign * x[:, I_A])
-            c /= self._a_per_lsb_batch
-            if self._adc_noisy:
-                c += self._adc_noise * self._rng.standard_normal(self.batch)
-            c += 0.5
-            np.floor(c, out=c)
-            # np.clip's Python wrapper costs more than these two calls.
-            np.minimum(c, self._adc_full, out=c)
-            if self._adc_noisy:
-                np.maximum(c, 0.0, out=c)
-            duty, enable = fw.current_tick(c.astype(np.int64))
-            # A copy (the firmware may reuse its output arrays) on the timer's steps:
-            # sim.bridge.quantise_duty.
-            d = np.minimum(np.maximum(duty, -1.0), 1.0)
-            d *= arr
-            np.rint(d, out=d)  # np.round's rounding (half to even), without its wrapper
-            d /= arr
-            en = np.array(enable, dtype=bool)
+            # the last period.
+            draw = self._rng.standard_normal(n) if self._adc_noisy else _NO_DRAW
+            adc = np.empty(n, dtype=np.int64)
+            _adc_counts(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
+                        self._adc_full, adc)  # fmt: skip
+            duty, enable = fw.current_tick(adc)
+            if not (isinstance(duty, np.ndarray) and duty.shape == (n,)):
+                duty = np.broadcast_to(np.asarray(duty, dtype=float), (n,))
+            if not (isinstance(enable, np.ndarray) and enable.shape == (n,)):
+                enable = np.broadcast_to(np.asarray(enable, dtype=bool), (n,))
+            # New arrays (the firmware may reuse its own), the duty on the timer's steps
+            # (sim.bridge.quantise_duty).
+            d, en = np.empty(n), np.empty(n, dtype=bool)
+            _bridge(duty, enable, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt)
             self._duty, self._enable = d, en
-            self._sense_sign = np.where(en, np.sign(d), 0.0)
             if self._record_inputs:
                 self._inputs.append((d.copy(), en.copy()))
             x = self.plant.update(t, x, (d, en))
@@ -563,7 +579,7 @@ class Simulation:
             arrays = self._arrays
             for f in FW_FIELDS:
                 arrays[f][k] = sig[f]
-            arrays["voltage_v"][k] = np.where(self._enable, self._duty * self._vs, 0.0)
+            arrays["voltage_v"][k] = self._volt
         self.tick += 1
         self._move_bytes()
 
@@ -614,7 +630,9 @@ def run(
         if progress is not None and (tick % every == 0 or tick == n_ticks):
             progress(tick, n_ticks)
     counters = dict(getattr(sim.fw, "counters", {}))
-    return RunResult(sim.log(), sim.pc_read(), sim.link_stats(), exp, counters)
+    # The simulation ends here: a batch log's buffers become the result's, without copies.
+    log = sim.log() if batch is None else sim._batch_log(copy=False)
+    return RunResult(log, sim.pc_read(), sim.link_stats(), exp, counters)
 
 
 def uart_faults(uart: UartParams) -> FaultInjection | None:
@@ -623,3 +641,47 @@ def uart_faults(uart: UartParams) -> FaultInjection | None:
     if not any(rates):
         return None
     return FaultInjection(*rates, burst_bytes=uart.burst_bytes)
+
+
+_NO_DRAW = np.empty(0)
+
+
+@numba.njit(cache=True)
+def _adc_counts(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out):
+    """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
+    current in the direction of ``sense_sign``, the high side only) through
+    ``sim.bridge.adc_counts``, the operations of the former numpy code in its order.
+    ``draw``: one standard normal per member, or nothing for a noiseless ADC."""
+    noisy = draw.shape[0] > 0
+    for j in range(x.shape[0]):
+        v = sense_sign[j] * x[j, I_A]
+        c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
+        c = c / a_per_lsb[j]
+        if noisy:
+            c = c + noise_lsb[j] * draw[j]
+        c = np.floor(c + 0.5)
+        if c > adc_full:
+            c = adc_full
+        if noisy and c < 0.0:
+            c = 0.0
+        out[j] = np.int64(c)
+
+
+@numba.njit(cache=True)
+def _bridge(duty, enable, arr, supply_v, d_out, en_out, sense_sign, volt):
+    """The bridge per member: the duty clamped to [-1, 1] on the timer's ``1/arr`` steps
+    (``sim.bridge.quantise_duty``, half to even), the enable, the IS pin's sign of the
+    next period and the average output voltage (0 while disabled)."""
+    for j in range(d_out.shape[0]):
+        v = duty[j]
+        if v < -1.0:
+            v = -1.0
+        if v > 1.0:
+            v = 1.0
+        v = np.rint(v * arr[j]) / arr[j]
+        e = bool(enable[j])
+        d_out[j] = v
+        en_out[j] = e
+        sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (0.0 if v == 0.0 else v))
+        sense_sign[j] = sign if e else 0.0
+        volt[j] = v * supply_v[j] if e else 0.0

@@ -31,6 +31,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 
 from sim import plant_kernel
@@ -528,15 +529,127 @@ _BLAS_SINGLE_THREAD = 65536
 _FUSED_SHARED: dict[tuple[Coefficients, float, int, int], np.ndarray] = {}
 
 
+@numba.njit(cache=True)
+def _same_end_modes(out, keys, key_of_signs):
+    """Whether every member's end mode, read from the signs of the boundary columns of its
+    fused product ``out`` (``BatchPlant._fused``), is its start mode ``keys`` (bridge on; a
+    current at I_CL reads -1, never a start mode)."""
+    for j in range(out.shape[0]):
+        code = 0
+        for b in range(_N_BOUNDS):
+            if out[j, N_X + 2 + b] > 0.0:
+                code |= 1 << b
+        if key_of_signs[code] != keys[j]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _mode_key_one(i, w, tw, wp, duty, enable, consts):
+    """``mode_keys`` of one member (the same arithmetic, bit for bit)."""
+    wbm, wbp, half, k, c, inv_n, icl, vs, r, ke, vd2 = consts
+    fm = 1 + (1 if w > wbm else 0) - (1 if w < -wbm else 0)
+    fp = 1 + (1 if wp > wbp else 0) - (1 if wp < -wbp else 0)
+    side = (1 if tw > half else 0) - (1 if tw < -half else 0)
+    tb = (1.0 if side != 0 else 0.0) * (k * (tw - half * side) + c * (w * inv_n - wp))
+    flow = 1 if tb * w < 0 else 0
+    if enable:
+        bridge = B_ON
+        if i >= icl or -i >= icl:
+            drive = vs * duty - r * i - ke * w
+            if i >= icl and drive > 0:
+                bridge = B_LIMIT_POS
+            elif i <= -icl and drive < 0:
+                bridge = B_LIMIT_NEG
+    elif i > 0:
+        bridge = B_DIODE_POS
+    elif i < 0:
+        bridge = B_DIODE_NEG
+    else:
+        emf = ke * w
+        bridge = B_DIODE_NEG if emf > vd2 else (B_DIODE_POS if emf < -vd2 else B_OPEN)
+    return (((bridge * 3 + fm) * 3 + fp) * 3 + side + 1) * 2 + flow
+
+
+@numba.njit(cache=True)
+def _locate_members(
+    x, duty, enable, key, done, level, budget, slot_row, stack, key_of_signs, consts,
+    levels, missing,
+):  # fmt: skip
+    """The sub-steps of ``BatchPlant._locate``, member after member, each to the end of its
+    step or to the first (mode, level) slot without a matrix in ``stack`` yet. The state
+    (``x, key, done, level, budget``) is updated in place; the slots wanted are written to
+    ``missing``. Returns ``(switches located, slots missing)``."""
+    full = 1 << levels
+    icl = consts[6]
+    n_missing = 0
+    n_located = 0
+    xn = np.empty(N_X)
+    for j in range(x.shape[0]):
+        d, e = duty[j], enable[j]
+        while done[j] < full:
+            lv = level[j]
+            k0 = key[j]
+            row = slot_row[k0 * 64 + lv]
+            if row < 0:
+                missing[n_missing] = k0 * 64 + lv
+                n_missing += 1
+                break
+            mat = stack[row]
+            # [x; duty; 1] @ F, each column summed in order as numpy's einsum does.
+            code = 0
+            for col in range(_FUSED):
+                acc = 0.0
+                for m in range(N_X):
+                    acc += x[j, m] * mat[m, col]
+                acc += d * mat[N_X, col]
+                acc += mat[N_X + 1, col]
+                if col < N_X:
+                    xn[col] = acc
+                elif col >= N_X + 2 and acc > 0.0:
+                    code |= 1 << (col - N_X - 2)
+            k1 = key_of_signs[code]
+            if k1 < 0 or not e:
+                k1 = _mode_key_one(xn[I_A], xn[VEL], xn[TWIST], xn[PVEL], d, e, consts)
+            if k1 != k0:
+                if lv < levels and budget[j] > 0:
+                    budget[j] -= 1
+                    level[j] = lv + 1
+                    continue
+                # Located to h / 2**levels: as in BatchPlant._locate.
+                n_located += 1
+                b0, b1 = k0 // 54, k1 // 54
+                i = xn[I_A]
+                if (b0 == B_DIODE_POS and i < 0) or (b0 == B_DIODE_NEG and i > 0):
+                    xn[I_A] = 0.0
+                if b1 == B_LIMIT_POS and xn[I_A] > icl:
+                    xn[I_A] = icl
+                if b1 == B_LIMIT_NEG and xn[I_A] < -icl:
+                    xn[I_A] = -icl
+                k1 = _mode_key_one(xn[I_A], xn[VEL], xn[TWIST], xn[PVEL], d, e, consts)
+            x[j, :] = xn
+            key[j] = k1
+            now = done[j] + (full >> lv)
+            done[j] = now
+            # Next: the longest aligned sub-step from the new time (its lowest set bit).
+            low = now & -now
+            p = 0
+            while low > 1:
+                low >>= 1
+                p += 1
+            level[j] = levels - p
+    return n_located, n_missing
+
+
 class BatchPlant:
-    """N plants stepped in lock-step with numpy; parameters scalar or ``(N,)`` per member.
+    """N plants stepped in lock-step; parameters scalar or ``(N,)`` per member.
 
     ``update(t_s, x, u) -> x_next`` with ``x`` of shape ``(N, 5)`` and ``u = (duty (N,),
     enable (N,))``. Members whose mode stays the same over the step (almost all, almost
     always) share one matrix product per mode; the same product gives the end state's
     boundary columns, whose signs give its mode through one table lookup. The members that
     switch mode are halved again: a few by the ``ScalarPlant`` recursion, many (shared
-    parameters) in lock-step by ``_locate``, with the same sub-steps. The Hermite excursion
+    parameters) by the compiled ``_locate``, with the same sub-steps. The Hermite excursion
     check of ``ScalarPlant`` is not run in batch (it would cost more than the step for N
     members).
     """
@@ -567,6 +680,11 @@ class BatchPlant:
         self._fused_mats: dict[int, np.ndarray] = {}
         self._last_out = np.empty((0, _FUSED))
         self._boundaries = _boundary_columns(self.co)
+        co = self.co
+        # The constants of _mode_key_one (shared parameters: floats).
+        self._key_consts = (
+            co.wbm, co.wbp, co.half, co.k, co.c, co.inv_n, co.icl, co.vs, co.r, co.ke, co.vd2,
+        )  # fmt: skip
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
 
@@ -665,74 +783,34 @@ class BatchPlant:
         self, x: np.ndarray, duty: np.ndarray, enable: np.ndarray, keys: np.ndarray
     ) -> np.ndarray:
         """The sub-steps of ``ScalarPlant._advance`` for members whose full step switched
-        mode (shared parameters), in lock-step over those members.
+        mode (shared parameters), compiled (``_locate_members``).
 
         The recursion of ``_advance`` tiles the step with aligned dyadic sub-steps: from
         time ``s`` it tries the longest aligned one (``h`` times the lowest set bit of
         ``s / h``), halves it while the mode changes within it (down to ``event_levels``,
         within the split budget) and takes each accepted sub-step in the mode of its start.
-        Here every member carries its own ``s``, level and budget, and each pass tries one
-        sub-step for every member still inside the step: the same sub-steps, and one numpy
-        pass per sub-step instead of one Python call per member and sub-step.
+        Here every member carries its own ``s``, level and budget: the same sub-steps, each
+        a fused product ``[x; duty; 1] @ F`` as in ``update``, its end mode from the
+        boundary signs. A (mode, level) met for the first time sends the loop back here
+        for its matrix, then it goes on where it stopped.
         """
-        co = self.co
-        levels = self.event_levels
-        full = 1 << levels
         m = x.shape[0]
-        x = x.copy()
+        x = np.array(x, dtype=float)  # a copy, C-ordered
         done = np.zeros(m, dtype=np.int64)  # time taken, in units of h / 2**levels
         level = np.ones(m, dtype=np.int64)  # the whole step (level 0) switched: halve
         budget = np.full(m, self.split_budget - 1, dtype=np.int64)
-        key = keys.copy()
-        live = np.arange(m)
-        while live.size:
-            lv = level[live]
-            k0 = key[live]
-            d, e = duty[live], enable[live]
-            xa = np.empty((live.size, N_X + 2))
-            xa[:, :N_X] = x[live]
-            xa[:, N_X] = d
-            xa[:, N_X + 1] = 1.0
-            out = np.einsum("nj,nji->ni", xa, self._stacked(k0 * 64 + lv))
-            xn = out[:, :N_X]
-            # End modes from the boundary signs (as in update); mode_keys where the bridge
-            # is off or a current reached I_CL.
-            k1 = _KEY_OF_SIGNS[((out[:, N_X + 2 :] > 0.0) @ _SIGN_WEIGHTS).astype(np.intp)]
-            other = (k1 < 0) | ~e
-            if other.any():
-                k1[other] = mode_keys(xn[other], d[other], e[other], co)
-            switched = k1 != k0
-            final = (lv >= levels) | (budget[live] <= 0)
-            halve = switched & ~final
-            if halve.any():
-                j = live[halve]
-                budget[j] -= 1
-                level[j] += 1
-            take = ~halve
-            located = switched & final
-            if located.any():
-                # Located to h / 2**levels: accept, as ScalarPlant._advance does. A current
-                # freewheeling through a diode stops at zero; one that reached the chip's
-                # limitation is held at I_CL. The next sub-step starts in the mode of the
-                # projected state.
-                self.n_located += int(located.sum())
-                i = xn[:, I_A]
-                b0, b1 = k0 // 54, k1 // 54
-                blocked = ((b0 == B_DIODE_POS) & (i < 0)) | ((b0 == B_DIODE_NEG) & (i > 0))
-                xn[located & blocked, I_A] = 0.0
-                xn[located & (b1 == B_LIMIT_POS) & (i > co.icl), I_A] = co.icl
-                xn[located & (b1 == B_LIMIT_NEG) & (i < -co.icl), I_A] = -co.icl
-                k1[located] = mode_keys(xn[located], d[located], e[located], co)
-            j = live[take]
-            x[j] = xn[take]
-            key[j] = k1[take]
-            now = done[j] + (full >> lv[take])
-            done[j] = now
-            # Next: the longest aligned sub-step from the new time (its lowest set bit).
-            low = now & -now
-            level[j] = levels - (np.frexp(low.astype(float))[1] - 1)
-            live = live[done[live] < full]
-        return x
+        key = np.array(keys, dtype=np.int64)
+        missing = np.empty(m, dtype=np.int64)
+        while True:
+            located, n_missing = _locate_members(
+                x, np.ascontiguousarray(duty, dtype=float), np.ascontiguousarray(enable),
+                key, done, level, budget, self._slot_row, self._stack, _KEY_OF_SIGNS,
+                self._key_consts, self.event_levels, missing,
+            )  # fmt: skip
+            self.n_located += located
+            if not n_missing:
+                return x
+            self._stacked(missing[:n_missing])  # the matrices of the slots wanted
 
     def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
         duty, enable = u
@@ -761,6 +839,11 @@ class BatchPlant:
         xa[:, N_X] = duty
         out = self._apply(xa, keys)
         xn = out[:, :N_X]
+        if known and _same_end_modes(out, keys, _KEY_OF_SIGNS):
+            # The common case, in one compiled pass: no member switched mode (its keys, all
+            # mechanical, stay the next step's).
+            self._last_x, self._last_out = xn, out
+            return xn
         if known:
             # Mode of the end state from the signs of its boundary columns (one table
             # lookup); -1 where a current reached I_CL (the bridge part needs mode_keys).

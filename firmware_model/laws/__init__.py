@@ -1,6 +1,7 @@
 """The interchangeable implementations of the control law (one per file, same methods and
 attributes): ``ScalarLaw`` (floats), ``ScalarFixedLaw`` (Q-format on ints), ``ArrayLaw``
-(numpy batch, float64 or Q-format). ``firmware_model/servo.py`` describes what they compute."""
+(batch: float64 in the compiled loops of ``array_float.py``, or Q-format on numpy).
+``firmware_model/servo.py`` describes what they compute."""
 
 from firmware_model.laws.array import ArrayLaw
 from firmware_model.laws.common import GAIN_NAMES, LawBase

@@ -1,5 +1,6 @@
 """``N`` axes in lock-step on numpy arrays of shape ``(N,)``: float64, or saturating int32
-Q16.16 / Q8.24 (``fixed=True``). The float64 steps have their own lean methods."""
+Q16.16 / Q8.24 (``fixed=True``). The float64 steps run compiled kernels
+(``firmware_model/laws/array_float.py``); the fixed-point steps run numpy."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_model import fixedpoint as fx
+from firmware_model.laws.array_float import current_step, estimate_step, servo_step
 from firmware_model.laws.common import (
     HALF_REV,
     Q_DEG_PER_COUNT,
@@ -43,7 +45,7 @@ class ArrayLaw(LawBase):
         else:
             self._mul, self._sat = np.multiply, identity
             self._sig, self._out = identity, identity
-            # Float64 has its own, leaner steps (no saturation); same results bit for bit.
+            # Float64 runs compiled kernels (no saturation); the same results bit for bit.
             self.estimate = self._estimate_float  # type: ignore[method-assign]
             self.servo = self._servo_float  # type: ignore[method-assign]
             self.current = self._current_float  # type: ignore[method-assign]
@@ -67,8 +69,11 @@ class ArrayLaw(LawBase):
         self._kp_i = self._gain(g["kp_i"])
         self._ki_i_dt = self._gain(np.asarray(g["ki_i"]) * self.dt_current_s)
         self._r_ff, self._emf_ff = self._gain(g["r_ff"]), self._gain(g["emf_ff"])
-        # R * I_limit of the float steps (the fixed steps work it out in Q-format).
-        self._r_lim = np.asarray(g["r_ff"], dtype=float) * self.i_limit_a
+        if not self.fixed:
+            # R * I_limit and the voltage clamp of the float steps (the fixed steps work
+            # them out in Q-format).
+            self._r_lim = self._r_ff * self.i_limit_a
+            self._u_lim = self.duty_limit * self.supply_v
         self._kpos_m1 = self._gain(self.k_pos - 1.0)
         self._kvel = self._gain(self.k_vel)
         self._kdist = self._gain(self.k_dist)
@@ -247,8 +252,8 @@ class ArrayLaw(LawBase):
         return self._apply(steps, i_meas, enabled)
 
     def _apply(self, steps: np.ndarray, i_meas: np.ndarray, enabled) -> np.ndarray:
-        """Shared tail of both current-loop paths: the compute-delay pipeline, the bridge
-        enable, and the duty on the timer grid."""
+        """Tail of the fixed-point current step (the float kernel does the same per member):
+        the compute-delay pipeline, the bridge enable, and the duty on the timer grid."""
         if self.delay:
             out = self._pipe[self._pipe_i].copy()
             self._pipe[self._pipe_i] = steps
@@ -264,28 +269,21 @@ class ArrayLaw(LawBase):
         self.duty = out / self.arr
         return self.duty
 
-    # -- the float64 steps: the same arithmetic as ScalarLaw, in the same order
+    # -- the float64 steps: compiled kernels (firmware_model/laws/array_float.py)
     def _estimate_float(self, raw_counts: npt.ArrayLike) -> None:
         raw = np.asarray(raw_counts, dtype=np.int64)
-        i_expected = self._ref_pipe[self._ref_i] + (self._imeas - self._ref_d_last)
-        acc = i_expected * self._k_acc + self._ad
-        pred = self._ep + self._v + acc * 0.5
-        pred_int = np.floor(pred + 0.5).astype(np.int64)
-        delta = (raw - self.count - pred_int) % REV
-        delta -= (delta >= HALF_REV) * REV
-        d = pred_int + delta
-        err = d - pred
-        self._ep = err * self._kpos_m1
-        self._v = self._v + acc + err * self._kvel
-        self._ad = self._ad + err * self._kdist
-        self.count = self.count + d
-        self.pos_deg = self.count * AXIS_DEG_PER_COUNT
-        self.innovation_counts = delta
-        self._d = d
-        self.stuck_ticks = (self.stuck_ticks + 1) * (raw == self._raw_prev)
+        n = self.n
+        count, innov, stuck = (np.empty(n, dtype=np.int64) for _ in range(3))
+        pos, vel_raw, vel = np.empty(n), np.empty(n), np.empty(n)
+        estimate_step(
+            raw, self.count, self._raw_prev, self.stuck_ticks, self._ep, self._v, self._ad,
+            self._d, self._ref_pipe[self._ref_i], self._imeas, self._ref_d_last,
+            self._k_acc, self._kpos_m1, self._kvel, self._kdist, self._k_vel,
+            self.dps_per_count_tick, count, pos, innov, stuck, vel_raw, vel,
+        )  # fmt: skip
+        self.count, self.pos_deg, self.innovation_counts = count, pos, innov
+        self.stuck_ticks, self.vel_raw_dps, self._vel = stuck, vel_raw, vel
         self._raw_prev = raw
-        self.vel_raw_dps = d * self.dps_per_count_tick
-        self._vel = self._v * self._k_vel
 
     def _servo_float(
         self,
@@ -295,16 +293,13 @@ class ArrayLaw(LawBase):
         v_clamp_dps: float,
         i_limit_a: float,
     ) -> None:
-        e = sp_pos_deg - self.count * AXIS_DEG_PER_COUNT
-        vr = clip(e * self._kp_p + sp_vel_dps * self._vff, v_clamp_dps)
-        ev = vr - self._vel
-        u = ev * self._kp_v + self._i_v + sp_acc_dps2 * self._acc_ff
-        # Hold the integrator while the output is clamped and the error pushes further in.
-        hold = (np.abs(u) > i_limit_a) & (u * ev > 0.0)
-        i_v = np.where(hold, self._i_v, self._i_v + ev * self._ki_v_dt)
-        self._i_v = clip(i_v, i_limit_a)
-        self._vr = vr
-        self._iref = clip(u, i_limit_a)
+        vr, iref = np.empty(self.n), np.empty(self.n)
+        servo_step(
+            self.count, self._vel, self._i_v, self._kp_p, self._vff, self._kp_v,
+            self._ki_v_dt, self._acc_ff, float(sp_pos_deg), float(sp_vel_dps),
+            float(sp_acc_dps2), float(v_clamp_dps), float(i_limit_a), vr, iref,
+        )  # fmt: skip
+        self._vr, self._iref = vr, iref
         if i_limit_a != self.i_limit_a:
             self.i_limit_a = i_limit_a
             self._r_lim = self._r_ff * i_limit_a
@@ -312,34 +307,24 @@ class ArrayLaw(LawBase):
     def _current_float(
         self, adc_counts: npt.ArrayLike, enabled: npt.NDArray[np.bool_]
     ) -> npt.NDArray[np.float64]:
-        adc = np.asarray(adc_counts)
-        sign = np.sign(self._steps)
-        i_meas = adc * self.a_per_adc * sign
-        i_ref = self._iref
-        k = self._ref_i
-        ref_d = self._ref_pipe[k]
-        self._ref_d_last = ref_d.copy()
-        blind = (adc <= self.sense_floor) & (np.sign(ref_d) * sign <= 0)
-        i_meas = np.where(blind, ref_d, i_meas)
-        e = ref_d - i_meas
-        self._ref_pipe[k] = i_ref
-        self._ref_i = (k + 1) % (self.delay + 1)
-        emf = self._vel * self._emf_ff
-        u = e * self._kp_i + self._i_i + i_ref * self._r_ff + emf
-        ul = self.duty_limit * self.supply_v
-        hold = (np.abs(u) > ul) & (u * e > 0.0)
-        i_i = np.where(hold, self._i_i, self._i_i + e * self._ki_i_dt)
-        # The regenerative clamp and its back-calculation (see ScalarLaw.current).
-        d = u - emf
-        r_lim = self._r_lim
-        regen = (np.abs(d) > r_lim) & (d * u <= 0.0)
-        if regen.any():
-            c = np.where(d < 0.0, emf - r_lim, emf + r_lim)
-            i_i = np.where(regen, self._i_i + (c - u), i_i)
-            u = np.where(regen, c, u)
-        self._i_i = clip(i_i, ul)
-        steps = np.round(clip(u, ul) / self.supply_v * self.arr).astype(np.int64)
-        return self._apply(steps, i_meas, enabled)
+        n = self.n
+        adc = np.asarray(adc_counts, dtype=np.int64)
+        enabled = np.asarray(enabled, dtype=bool)
+        if enabled.shape != (n,):
+            enabled = np.broadcast_to(enabled, (n,))
+        steps, duty, i_meas = np.empty(n, dtype=np.int64), np.empty(n), np.empty(n)
+        current_step(
+            adc, enabled, self._steps, self._iref, self._vel, self._i_i, self._i_v, self._vr,
+            self._ref_pipe, self._ref_i, self._ref_d_last, self._pipe, self._pipe_i,
+            self.delay, self._kp_i, self._ki_i_dt, self._r_ff, self._emf_ff, self._r_lim,
+            float(self.a_per_adc), int(self.sense_floor), self._u_lim, float(self.supply_v),
+            float(self.arr), steps, duty, i_meas,
+        )  # fmt: skip
+        self._ref_i = (self._ref_i + 1) % (self.delay + 1)
+        if self.delay:
+            self._pipe_i = (self._pipe_i + 1) % self.delay
+        self._steps, self.duty, self._imeas = steps, duty, i_meas
+        return duty
 
     # -- float views of the state (axis units)
     @property

@@ -519,3 +519,49 @@ def test_signal_row_is_signals_in_order(make_bench, batch):
     for name, value in zip(SIGNAL_NAMES, row, strict=True):
         np.testing.assert_array_equal(value, sig[name])
     assert sig["vel_dps"] != 0.0 if batch is None else np.all(sig["vel_dps"] != 0.0)
+
+
+def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
+    from firmware_model.firmware import _any_trip
+
+    rng = np.random.default_rng(2)
+    hits = 0
+    for _ in range(3000):
+        n = int(rng.integers(1, 9))
+        innov = rng.integers(-40, 40, n)
+        stuck = rng.integers(0, 12, n)
+        vel_ref, vel = rng.normal(0.0, 60.0, n), rng.normal(0.0, 60.0, n)
+        pos, sp = rng.normal(0.0, 1.0, n), float(rng.normal())
+        fe = math.inf if rng.random() < 0.3 else 2.0
+        want = (
+            (np.abs(innov) > 35)
+            | ((stuck >= 10) & (np.abs(vel_ref) > 100.0))
+            | (np.abs(vel) > 150.0)
+            | (np.abs(sp - pos) > fe)
+        ).any()
+        assert _any_trip(innov, stuck, vel_ref, vel, pos, sp, 35, 10, 100.0, 150.0, fe) == want
+        hits += bool(want)
+    assert 300 < hits < 2700
+
+
+def test_batch_encoder_and_following_error_trips_hit_only_their_member(make_bench):
+    params = FirmwareParams()
+    b = make_bench(params, batch=3)
+    # Member 1's reading jumps by 3000 counts at tick 60; member 2's stops moving at 80.
+    held = {}
+
+    def readings(k, counts):
+        counts = counts.copy()
+        if k >= 60:
+            counts[1] = (counts[1] + 3000) % 16384
+        if k >= 80:
+            counts[2] = held.setdefault(2, counts[2])
+        return counts
+
+    b.encoder_override = readings
+    b.run(400, {5: [move(1, 30.0)]})
+    fault = b.arr("fault")[-1]
+    assert fault[0] == 0 and fault[1] == Fault.ENCODER
+    assert fault[2] in (Fault.ENCODER, Fault.FOLLOWING_ERROR)
+    first = np.argmax(b.arr("fault")[:, 1] != 0)
+    assert first == 60

@@ -67,3 +67,24 @@ def test_batch_read_matches_scalar_reads():
     counts = enc.read_batch(x)
     assert counts.dtype == np.int64
     assert [enc.read(list(row)) for row in x] == counts.tolist()
+
+
+def test_batch_read_with_parameters_per_member_matches_each_members_reads():
+    rng = np.random.default_rng(4)
+    n = 300
+    latency, offset = rng.uniform(0.0, 3e-4, n), rng.uniform(0.0, 40.0, n)
+    noise = rng.uniform(0.0, 2.5, n)
+    batch = Encoder(
+        EncoderParams(latency_s=latency, offset_counts=offset, noise_rms_lsb=noise),
+        np.random.default_rng(8),
+    )
+    x = np.zeros((n, 5))
+    x[:, 1] = rng.uniform(-100, 100, n)
+    x[:, 2] = rng.uniform(-1500, 1500, n)
+    counts = batch.read_batch(x)
+    # The same draws as the batch: one standard normal per member from the seeded generator.
+    draws = np.random.default_rng(8).standard_normal(n)
+    for j in range(n):
+        one = _enc(latency_s=latency[j], offset_counts=offset[j], noise_rms_lsb=noise[j])
+        one._block = [float(noise[j] * draws[j])]  # the next draw of its block
+        assert one.read(list(x[j])) == counts[j]

@@ -300,3 +300,73 @@ def test_current_loop_multiple_steps_the_plant_that_many_times_per_tick(bench):
     duty, _ = sim.inputs()
     assert len(duty) == 2 * 750
     assert sim.log().pos_deg[-1] == pytest.approx(90.0, abs=0.1)
+
+
+def test_batch_log_columns_are_copies_of_the_rows_in_tick_order(bench):
+    sim = Simulation(bench, batch=3)
+    sim.step(2)
+    sim.pc_write(frame.encode(Move(1, 10.0, 300.0, 1000.0), 0))
+    rows = {f: [] for f in ("pos_deg", "duty", "state", "motor_pos_rad", "current_a")}
+    for _ in range(150):
+        rows["motor_pos_rad"].append(sim.plant_state[:, 1])  # the state the tick samples
+        rows["current_a"].append(sim.plant_state[:, 0])
+        sim.step(1)
+        sig = sim.fw.signals()
+        for f in ("pos_deg", "duty", "state"):
+            rows[f].append(np.array(sig[f]))
+    log = sim.log()
+    assert len(log) == 152 and log.pos_deg.shape == (3, 152)
+    for f, values in rows.items():
+        column = getattr(log, f)
+        np.testing.assert_array_equal(column[:, 2:], np.array(values).T)
+        assert column.dtype == (np.int64 if f == "state" else float)
+    assert log.pos_deg[0, -1] != 0.0
+    before = sim.log()
+    log.pos_deg[:] = 0.0  # a copy: the simulation's log is unchanged
+    np.testing.assert_array_equal(sim.log().pos_deg, before.pos_deg)
+    sim.step(5)  # later ticks leave the earlier rows as they were
+    np.testing.assert_array_equal(sim.log().duty[:, :152], before.duty)
+
+
+def test_run_hands_over_the_same_batch_log_as_log(tmp_path):
+    exp = load_experiment(_experiment(tmp_path, MOVE.format(target=20.0), duration_s=0.4))
+    res = run(exp, batch=2)
+    sim = Simulation(exp.bench, batch=2)
+    first = math.ceil(exp.commands[0].t_s / sim.dt_s - 1e-9)
+    sim.step(first)
+    sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+    sim.step(len(res.log) - first)
+    log = sim.log()
+    for f in LOG_FIELDS:
+        np.testing.assert_array_equal(getattr(res.log, f), getattr(log, f), err_msg=f)
+
+
+def test_batch_bridge_and_adc_kernels_compute_sim_bridge():
+    from sim.bridge import adc_counts, quantise_duty, sensed_current_a
+    from sim.loop import _NO_DRAW, _adc_counts, _bridge
+    from sim.params import BridgeParams, CurrentSenseParams
+
+    n = 5000
+    rng = np.random.default_rng(9)
+    bridge, sense = BridgeParams(), CurrentSenseParams()
+    duty = rng.uniform(-1.3, 1.3, n)
+    duty[::7] = np.round(duty[::7] * 7200) / 7200  # halfway between two steps
+    duty[::11] = 0.0
+    enable = rng.random(n) < 0.8
+    arr, vs = np.full(n, float(bridge.arr)), rng.uniform(20.0, 26.0, n)
+    d, en, sign, volt = np.empty(n), np.empty(n, dtype=bool), np.empty(n), np.empty(n)
+    _bridge(duty, enable, arr, vs, d, en, sign, volt)
+    assert d.tobytes() == quantise_duty(duty, bridge).tobytes()
+    np.testing.assert_array_equal(en, enable)
+    np.testing.assert_array_equal(volt, np.where(enable, d * vs, 0.0))
+    x = np.zeros((n, 5))
+    x[:, 0] = rng.uniform(-40.0, 40.0, n)
+    a_per_lsb = np.full(n, sense.a_per_lsb)
+    want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense)
+    for draw, noise in ((_NO_DRAW, np.zeros(n)), (rng.standard_normal(n), np.full(n, 3.0))):
+        got = np.empty(n, dtype=np.int64)
+        _adc_counts(x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got)
+        if draw.size:
+            want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense, noise * draw)
+        np.testing.assert_array_equal(got, want)
+    assert want.min() == 0 and want.max() == 4095
