@@ -336,11 +336,20 @@ def frame_bytes(cls: type) -> int:
 TELEMETRY_FRAME_BYTES = frame_bytes(Telemetry)
 
 _TELEMETRY = _BY_CLASS[Telemetry]
-_TELEMETRY_PACK = _TELEMETRY.frame.pack
+_TELEMETRY_PAYLOAD_PACK = _TELEMETRY.payload.pack
 _TELEMETRY_HDR = _TELEMETRY.hdr_by_seq
 _TELEMETRY_LEN = _TELEMETRY.payload.size
 _TELEMETRY_TYPE = _TELEMETRY.msg_type
 _TELEMETRY_UNPACK = _TELEMETRY.payload.unpack_from
+# Per sequence number: the 6 header bytes of a telemetry frame and the CRC-16 register after
+# bytes 2..5 of it (the frame's CRC continues over the payload from there).
+_TELEMETRY_HEADS = tuple(
+    (head, crc_hqx(head[2:], 0xFFFF))
+    for head in (
+        bytes((0xA5, 0x5A, _TELEMETRY_LEN, _TELEMETRY_TYPE, seq, _TELEMETRY_HDR[seq]))
+        for seq in range(256)
+    )
+)
 # (field, scale, lowest, highest wire value) of the saturating fields, in wire order
 _TELEMETRY_SATURATION = (
     ("sp_pos_deg", POS_SCALE, -(2**31), 2**31 - 1),
@@ -367,18 +376,12 @@ def encode_telemetry_fields(
     """Frame one telemetry message from its fields, without building a ``Telemetry``.
 
     The same bytes as ``encode(Telemetry(tick, ...), seq)`` for the firmware's hot path
-    (about 1.7 us against 4 us with the dataclass): values beyond the wire range saturate,
-    NaN raises ``ValueError``.
+    (0.6 us; building the ``Telemetry`` first adds 0.75 us): values beyond the wire range
+    saturate, NaN raises ``ValueError``.
     """
     seq &= 0xFF
     try:
-        head = _TELEMETRY_PACK(
-            0xA5,
-            0x5A,
-            _TELEMETRY_LEN,
-            _TELEMETRY_TYPE,
-            seq,
-            _TELEMETRY_HDR[seq],
+        payload = _TELEMETRY_PAYLOAD_PACK(
             tick & 0xFFFFFFFF,
             round(sp_pos_deg * POS_SCALE),
             round(sp_vel_dps * VEL_SCALE),
@@ -394,7 +397,9 @@ def encode_telemetry_fields(
             tick, sp_pos_deg, sp_vel_dps, pos_deg, vel_dps, current_a, duty, state, fault
         )  # type: ignore[arg-type]
         return _encode_telemetry_saturated(msg, seq)
-    return head + crc_hqx(head[2:], 0xFFFF).to_bytes(2, "little")
+    # The header of each sequence number and the CRC over it are constants (_TELEMETRY_HEADS).
+    head, crc = _TELEMETRY_HEADS[seq]
+    return head + payload + crc_hqx(payload, crc).to_bytes(2, "little")
 
 
 def _encode_telemetry(msg: Telemetry, seq: int) -> bytes:
