@@ -64,13 +64,18 @@ def bench_codec(n: int) -> list[tuple[str, float, str]]:
     def bulk() -> None:
         Decoder().feed(frames)
 
+    def bulk_columns() -> None:
+        Decoder().feed_columns(frames)
+
     reps = max(1, n // 2000)
     per_tick_us = best_us(per_tick, reps) / 1000
     bulk_us = best_us(bulk, reps) / 1000
+    columns_us = best_us(bulk_columns, reps) / 1000
     rows += [
         ("decode, one frame per feed()", per_tick_us, "us/frame"),
         ("decode throughput, one frame per feed()", 1e6 / per_tick_us, "frames/s"),
         ("decode throughput, 34 kB per feed()", 1e6 / bulk_us, "frames/s"),
+        ("decode throughput, 34 kB per feed_columns()", 1e6 / columns_us, "frames/s"),
     ]
     faults = FaultInjection(bit_flip_rate=1e-3, drop_rate=1e-3, insert_rate=1e-3, burst_rate=1e-3)
     uart = EmulatedUart(460800, 1 << 22, faults, seed=1)
