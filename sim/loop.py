@@ -35,6 +35,7 @@ from typing import Any
 import numba
 import numpy as np
 
+from firmware_model.firmware import SIGNAL_NAMES
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Telemetry
@@ -46,20 +47,9 @@ from sim.plant import I_A, TWIST, VEL, BatchPlant, ScalarPlant
 
 __all__ = ["LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run"]
 
-# Every logged signal, in CSV column order after t_s (README, "CSV columns").
-FW_FIELDS = (
-    "sp_pos_deg",
-    "sp_vel_dps",
-    "sp_acc_dps2",
-    "pos_deg",
-    "vel_dps",
-    "vel_raw_dps",
-    "current_meas_a",
-    "current_ref_a",
-    "duty",
-    "state",
-    "fault",
-)
+# Every logged signal, in CSV column order after t_s (README, "CSV columns"): the firmware's
+# signals, then the plant's.
+FW_FIELDS = SIGNAL_NAMES
 PLANT_FIELDS = (
     "true_pos_deg",
     "true_vel_dps",

@@ -335,16 +335,21 @@ def test_arbitrary_bytes_never_raise(data, cuts):
     assert decoder.pending_bytes == 0
 
 
+def _with_noise(msgs: list, data: st.DataObject) -> bytes:
+    """The frames of ``msgs`` with up to 40 random bytes inserted at a random place."""
+    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
+    noise = data.draw(st.binary(max_size=40))
+    where = data.draw(st.integers(0, len(raw)))
+    return raw[:where] + noise + raw[where:]
+
+
 @PROPERTY
 @given(
     st.lists(MESSAGES, min_size=1, max_size=12),
     st.data(),
 )
 def test_output_is_the_same_however_the_stream_is_chunked(msgs, data):
-    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
-    noise = data.draw(st.binary(max_size=40))
-    where = data.draw(st.integers(0, len(raw)))
-    raw = raw[:where] + noise + raw[where:]
+    raw = _with_noise(msgs, data)
     whole = Decoder()
     expected = whole.feed(raw)
     cuts = sorted(data.draw(st.lists(st.integers(0, len(raw)), max_size=20)))
@@ -456,10 +461,7 @@ def _as_columns(messages: list) -> tuple[dict[str, list], list]:
 @PROPERTY
 @given(st.lists(MESSAGES, min_size=1, max_size=12), st.data())
 def test_feed_columns_is_feed_with_telemetry_as_columns(msgs, data):
-    raw = b"".join(encode(m, k) for k, m in enumerate(msgs))
-    noise = data.draw(st.binary(max_size=40))
-    where = data.draw(st.integers(0, len(raw)))
-    raw = raw[:where] + noise + raw[where:]
+    raw = _with_noise(msgs, data)
     objects = Decoder()
     expected_columns, expected_others = _as_columns(objects.feed(raw))
     columns = Decoder()
