@@ -727,7 +727,9 @@ def _telemetry_columns(buf: bytearray, offsets: list[int]) -> dict[str, np.ndarr
     """The telemetry payloads at ``offsets`` in ``buf`` as columns (``feed_columns``)."""
     size = _TELEMETRY_DTYPE.itemsize
     at = np.fromiter(offsets, dtype=np.intp, count=len(offsets))
-    raw = np.frombuffer(bytes(buf), dtype=np.uint8)
+    # A view, not a copy: the gather below copies, and the view is gone before the caller
+    # trims buf (a bytearray cannot be resized while a buffer of it is exported).
+    raw = np.frombuffer(buf, dtype=np.uint8)
     rec = raw[at[:, None] + np.arange(size)].copy().view(_TELEMETRY_DTYPE).reshape(-1)
     columns = {"tick": rec["tick"].astype(np.int64)}
     for name, field, scale in _TELEMETRY_COLUMNS:

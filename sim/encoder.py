@@ -15,7 +15,7 @@ import math
 import numba
 import numpy as np
 
-from sim.params import EncoderParams
+from sim.params import EncoderParams, per_member
 from sim.plant import POS, VEL
 
 __all__ = ["Encoder"]
@@ -51,11 +51,9 @@ class Encoder:
         """Counts (int64 array (N,)) for states of shape (N, 5)."""
         n = x.shape[0]
         if self._batch_n != n:
-            # The parameters as (N,) arrays for the kernel (each may be scalar or (N,)).
             self._batch_n = n
             self._batch_params = tuple(
-                np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (n,)))
-                for v in (self._latency_s, self._offset, self._noise)
+                per_member(v, n) for v in (self._latency_s, self._offset, self._noise)
             )
         draw = self.rng.standard_normal(n) if self._noisy else _NO_DRAW
         counts = np.empty(n, dtype=np.int64)

@@ -42,7 +42,7 @@ from serial_protocol.messages import Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection
 from sim.config import TABLES, BenchConfig, Experiment
 from sim.encoder import Encoder
-from sim.params import PlantParams, UartParams
+from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, BatchPlant, ScalarPlant
 
 __all__ = ["LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run"]
@@ -324,12 +324,11 @@ class Simulation:
             # The bridge voltage of the last current-loop period (the log's voltage_v).
             self._volt = np.zeros(batch)
             # Parameters as (N,) arrays for the kernels (each may be scalar or (N,)).
-            per_member = (
+            parameters = (
                 plant.current_sense.a_per_lsb, self._adc_noise, plant.bridge.arr, self._vs,
             )  # fmt: skip
             self._a_per_lsb_n, self._adc_noise_n, self._arr_n, self._vs_n = (
-                np.ascontiguousarray(np.broadcast_to(np.asarray(v, dtype=float), (batch,)))
-                for v in per_member
+                per_member(v, batch) for v in parameters
             )
 
     # ---------------------------------------------------------------- public API

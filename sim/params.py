@@ -30,7 +30,14 @@ __all__ = [
     "SupplyParams",
     "TABLES",
     "UartParams",
+    "per_member",
 ]
+
+
+def per_member(value: Any, n: int) -> np.ndarray:
+    """A parameter (float, or ``(n,)`` array: one per batch member) as a contiguous ``(n,)``
+    float array, the form the compiled batch loops take."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), (n,)))
 
 
 def _check(obj: Any, name: str, ok: bool, reason: str) -> None:
