@@ -762,22 +762,19 @@ class BatchPlant:
                 out[sel] = xa[sel] @ mat if blas else np.einsum("nj,ji->ni", xa[sel], mat)
         return out
 
-    def _stacked(self, slots: np.ndarray) -> np.ndarray:
-        """``_fused`` of every (mode, level) slot in ``slots`` (shared parameters): (M, 7, 21)."""
-        rows = self._slot_row[slots]
-        missing = rows < 0
-        if missing.any():
-            for slot in np.unique(slots[missing]).tolist():
-                used = self._stack_used
-                if used == self._stack.shape[0]:  # grow by doubling: no copy per new slot
-                    grown = np.empty((max(64, 2 * used), N_X + 2, _FUSED))
-                    grown[:used] = self._stack[:used]
-                    self._stack = grown
-                self._stack[used] = self._fused(slot // 64, slot % 64)
-                self._slot_row[slot] = used
-                self._stack_used = used + 1
-            rows = self._slot_row[slots]
-        return self._stack[rows]
+    def _load_slots(self, slots: np.ndarray) -> None:
+        """Put ``_fused`` of every (mode, level) slot in ``slots`` that is not there yet into
+        ``_stack`` (shared parameters; ``_slot_row[slot]`` is its row)."""
+        missing = self._slot_row[slots] < 0
+        for slot in np.unique(slots[missing]).tolist():
+            used = self._stack_used
+            if used == self._stack.shape[0]:  # grow by doubling: no copy per new slot
+                grown = np.empty((max(64, 2 * used), N_X + 2, _FUSED))
+                grown[:used] = self._stack[:used]
+                self._stack = grown
+            self._stack[used] = self._fused(slot // 64, slot % 64)
+            self._slot_row[slot] = used
+            self._stack_used = used + 1
 
     def _locate(
         self, x: np.ndarray, duty: np.ndarray, enable: np.ndarray, keys: np.ndarray
@@ -810,7 +807,7 @@ class BatchPlant:
             self.n_located += located
             if not n_missing:
                 return x
-            self._stacked(missing[:n_missing])  # the matrices of the slots wanted
+            self._load_slots(missing[:n_missing])
 
     def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
         duty, enable = u

@@ -86,7 +86,9 @@ def _locate_numpy(plant, x, duty, enable, keys):
         xa[:, :N_X] = x[live]
         xa[:, N_X] = d
         xa[:, N_X + 1] = 1.0
-        out = np.einsum("nj,nji->ni", xa, plant._stacked(k0 * 64 + lv))
+        slots = k0 * 64 + lv
+        plant._load_slots(slots)
+        out = np.einsum("nj,nji->ni", xa, plant._stack[plant._slot_row[slots]])
         xn = out[:, :N_X]
         # End modes from the boundary signs (as in update); mode_keys where the bridge
         # is off or a current reached I_CL.
