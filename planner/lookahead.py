@@ -10,8 +10,10 @@ Seed 001 gives each junction i (between segments i and i+1) a speed V_i, the min
 4. ``V_i <= v_max``;
 5. optionally the contour-error limit ``V_i <= 2 e / (T tan(theta_i / 2))``.
 
-Then each segment is planned from (V_b, V_e, V_m, l) in the seed's seven cases
-(:func:`plan_segment`). Because the forward and backward passes bound every junction by its
+Then each segment is planned from (V_b, V_e, V_m, l) (:func:`plan_segment`): time-optimally
+by default, or in the seed's seven literal cases with ``optimal=False``. The corner and
+contour caps are computed from ``|u2 - u1| = 2 sin(alpha/2)`` and
+``|u2 + u1| = 2 cos(alpha/2)`` (u the unit directions), accurate at every angle. Because the forward and backward passes bound every junction by its
 neighbours, every segment has ``l >= |V_e^2 - V_b^2| / (2 a)``: the seed's "l < l_i, the
 look-ahead was wrong, stop the machine" cannot happen (the segment planner still checks and
 raises ``ValueError`` if handed such a segment directly).
@@ -39,7 +41,6 @@ import numpy.typing as npt
 
 from planner._checks import check_finite, check_positive
 from planner.profile import Profile, build_profile
-from planner.trapezoid import plan_trapezoid
 
 __all__ = [
     "LookaheadQueue",
@@ -58,7 +59,7 @@ _ROUND = 1e-9
 
 
 def plan_segment(
-    length: float, v_b: float, v_e: float, v_m: float, a_max: float, *, optimal: bool = False
+    length: float, v_b: float, v_e: float, v_m: float, a_max: float, *, optimal: bool = True
 ) -> Profile:
     """Seed 001, section 4: plan one segment of ``length`` from speed v_b to v_e.
 
@@ -80,10 +81,13 @@ def plan_segment(
     deceleration). Speeds are >= 0 along the path; the profile's position is the arc length
     from 0 to ``length``. Its ``case`` is ``"1"``..``"7"``.
 
-    The seed's cases 3, 4 and 7 are not the fastest when l_i < l < l_e (they cruise at the
-    lower end speed instead of rising above both ends). ``optimal=True`` plans those
-    segments with :func:`planner.plan_trapezoid` instead (same end speeds, shorter time;
-    its case letters then), and keeps the seed's cases 1, 2, 5 and 6, which are optimal.
+    ``optimal=True`` (the default) plans the time-optimal segment: the seed's cases 3 and 4
+    crawl the whole segment at the lower end speed (a corner capped at 0.2 speed units makes
+    a 1-unit segment at a_max = 1 take 5 s instead of 2), so every segment with
+    ``l_i < l < l_e`` is planned as case 7 for any end speeds: accelerate to the peak
+    ``sqrt(a l + (V_b^2 + V_e^2) / 2)`` (above both ends, below V_m) and decelerate.
+    Cases 1, 2, 5 and 6 are already time-optimal. ``optimal=False`` keeps the seed's
+    literal cases 3, 4 and 7.
 
     Raises:
         ValueError: ``l < l_i`` (beyond rounding): the end speed cannot be reached, which a
@@ -114,9 +118,14 @@ def plan_segment(
             f"length = {length!r}: shorter than l_i = {l_i!r} needed to go from "
             f"v_b = {v_b!r} to v_e = {v_e!r}; the look-ahead was wrong, stop the machine"
         )
-    if optimal and l_i + tol < length < l_e:
-        return plan_trapezoid(0.0, length, v_max=v_m, a_max=a_max, v0=v_b, v1=v_e)
     segments: list[tuple[float, float]]
+    if optimal and l_i + tol < length < l_e:
+        # peak^2 - V^2 without cancelling two near-equal squares: a l + (V_o^2 - V^2) / 2.
+        peak = math.sqrt(a_max * length + 0.5 * (v_b * v_b + v_e * v_e))
+        rise = (a_max * length + 0.5 * (v_e - v_b) * (v_e + v_b)) / (peak + v_b)
+        fall = (a_max * length + 0.5 * (v_b - v_e) * (v_b + v_e)) / (peak + v_e)
+        segments = [(max(rise, 0.0) / a_max, a_max), (max(fall, 0.0) / a_max, -a_max)]
+        return build_profile("trapezoid", "7", 0.0, v_b, 0.0, segments, length, v_e)
     if length >= l_e:
         t_up = (v_m - v_b) / a_max
         t_down = (v_m - v_e) / a_max
@@ -148,17 +157,23 @@ def plan_segment(
 def _corner_cap(
     u_in: Array, u_out: Array, a_max: float, period: float, contour_error: float | None
 ) -> float:
-    """Speed cap at a junction from the corner limit (and the contour-error limit)."""
-    cos_alpha = float(np.clip(np.dot(u_in, u_out), -1.0, 1.0))
+    """Speed cap at a junction from the corner limit (and the contour-error limit).
+
+    ``2 sin(alpha/2) = |u_out - u_in|`` and ``2 cos(alpha/2) = |u_out + u_in|`` for unit
+    directions: both are accurate to rounding for every angle, where ``sqrt((1 -+ cos)/2)``
+    loses all digits near a straight line (a 3e-7 rad kink was capped 0.04 % too fast) and
+    near a hairpin (a 1e-9 residue instead of 0 made a streaming plan crawl for years).
+    """
+    chord = float(np.linalg.norm(u_out - u_in))  # 2 sin(alpha / 2)
     if u_in.shape[0] == 1:
         # One dimension: same direction passes, a reversal must stop.
-        return math.inf if cos_alpha > 0.0 else 0.0
-    sin_half = math.sqrt(max(0.0, 0.5 * (1.0 - cos_alpha)))
-    cap = math.inf if sin_half == 0.0 else a_max * period / (2.0 * sin_half)
-    if contour_error is not None and sin_half > 0.0:
-        cos_half = math.sqrt(max(0.0, 0.5 * (1.0 + cos_alpha)))
-        tan_half = sin_half / cos_half if cos_half > 0.0 else math.inf
-        cap = min(cap, 2.0 * contour_error / (period * tan_half))
+        return math.inf if chord == 0.0 else 0.0
+    if chord == 0.0:
+        return math.inf
+    cap = a_max * period / chord
+    if contour_error is not None:
+        # V <= 2 e / (T tan(alpha/2)), tan(alpha/2) = |u_out - u_in| / |u_out + u_in|.
+        cap = min(cap, 2.0 * contour_error * float(np.linalg.norm(u_out + u_in)) / (period * chord))
     return cap
 
 
@@ -311,7 +326,7 @@ def plan_path(
     a_max: float,
     period: float,
     contour_error: float | None = None,
-    optimal: bool = False,
+    optimal: bool = True,
 ) -> PathPlan:
     """Batch look-ahead and per-segment planning of a polyline, at rest at both ends.
 
@@ -319,8 +334,9 @@ def plan_path(
         points: waypoints, shape ``(M + 1, N)`` (or ``(M + 1,)`` for one dimension).
         v_max, a_max: path speed and acceleration limits. period: the interpolation
             period T of the corner limit. contour_error: e of the optional contour limit.
-        optimal: plan segments time-optimally instead of in the seed's cases (see
-            :func:`plan_segment`); the junction speeds are the same.
+        optimal: plan segments time-optimally (the default) or in the seed's literal cases
+            3, 4 and 7 (``False``; see :func:`plan_segment`); the junction speeds are the
+            same either way.
     """
     _check_limits(v_max, a_max, period, contour_error)
     pts = _as_points(points)
@@ -340,7 +356,7 @@ def plan_program(
     v_max: float,
     a_max: float,
     period: float = 0.002,
-    optimal: bool = False,
+    optimal: bool = True,
 ) -> PathPlan:
     """A 1-D turntable program: visit ``waypoints`` in order, stopping only at reversals.
 
@@ -367,7 +383,8 @@ class LookaheadQueue:
     Args:
         start: the first point, shape ``(N,)`` (or a float for one dimension).
         window: the most segments held (>= 1).
-        optimal: plan segments time-optimally (see :func:`plan_segment`).
+        optimal: plan segments time-optimally (default) or in the seed's literal cases
+            (see :func:`plan_segment`).
     """
 
     def __init__(
@@ -379,7 +396,7 @@ class LookaheadQueue:
         period: float,
         window: int = 32,
         contour_error: float | None = None,
-        optimal: bool = False,
+        optimal: bool = True,
     ) -> None:
         _check_limits(v_max, a_max, period, contour_error)
         if not (isinstance(window, int) and window >= 1):

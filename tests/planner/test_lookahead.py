@@ -14,8 +14,14 @@ def seed_limits(lengths, dirs, speeds, *, v_max, a_max, period, contour_error=No
     """Seed 001's limits (1)-(5) at every inner junction, given the neighbours' speeds."""
     out = []
     for i in range(1, len(speeds) - 1):
-        cos_a = float(np.clip(np.dot(dirs[i - 1], dirs[i]), -1.0, 1.0))
-        alpha = math.acos(cos_a)
+        cos_a = float(np.dot(dirs[i - 1], dirs[i]))
+        # The angle from atan2(|u1 x u2|, u1 . u2): accurate at every angle, unlike acos.
+        u, w = dirs[i - 1], dirs[i]
+        if len(u) == 2:
+            sin_a = abs(float(u[0] * w[1] - u[1] * w[0]))
+        else:
+            sin_a = float(np.linalg.norm(np.cross(u, w))) if len(u) == 3 else 0.0
+        alpha = math.atan2(sin_a, cos_a)
         limits = [
             math.sqrt(speeds[i - 1] ** 2 + 2 * a_max * lengths[i - 1]),  # (1) forward
             math.sqrt(speeds[i + 1] ** 2 + 2 * a_max * lengths[i]),  # (3) backward
@@ -132,17 +138,92 @@ def test_seed001_seven_cases():
         "7": (10.0, 0.0, 0.0),
     }
     for case, (length, v_b, v_e) in cases.items():
-        prof = plan_segment(length, v_b, v_e, v_m, a)
+        prof = plan_segment(length, v_b, v_e, v_m, a, optimal=False)
         assert prof.case == case
         assert prof.at(0.0)[1] == v_b and prof.at(prof.duration)[:2] == (length, v_e)
         t = np.linspace(0.0, prof.duration, 1001)
         s, ds, dds = prof.at(t)
         assert np.all(ds <= v_m * (1 + 1e-12)) and np.all(np.abs(dds) <= a * (1 + 1e-12))
     # Case 4 is "cruise, then decelerate" (so a stop is at the very end), case 3 the mirror.
-    assert [ph[2] for ph in plan_segment(20.0, 8.0, 2.0, v_m, a).phases] == [0.0, -a]
-    assert [ph[2] for ph in plan_segment(20.0, 2.0, 8.0, v_m, a).phases] == [a, 0.0]
+    seed = {"optimal": False}
+    assert [ph[2] for ph in plan_segment(20.0, 8.0, 2.0, v_m, a, **seed).phases] == [0.0, -a]
+    assert [ph[2] for ph in plan_segment(20.0, 2.0, 8.0, v_m, a, **seed).phases] == [a, 0.0]
     # Equal non-zero speeds and too short to reach v_m: a cruise.
-    assert plan_segment(5.0, 3.0, 3.0, v_m, a).duration == pytest.approx(5.0 / 3.0)
+    assert plan_segment(5.0, 3.0, 3.0, v_m, a, **seed).duration == pytest.approx(5.0 / 3.0)
+
+
+def test_default_segments_are_time_optimal_case_7_for_any_end_speeds():
+    v_m, a = 10.0, 2.0
+    for length, v_b, v_e in [(20.0, 2.0, 8.0), (20.0, 8.0, 2.0), (10.0, 0.0, 0.0), (5.0, 3.0, 3.0)]:
+        prof = plan_segment(length, v_b, v_e, v_m, a)
+        assert prof.case == "7"
+        assert [ph[2] for ph in prof.phases] == [a, -a]
+        peak = math.sqrt(a * length + (v_b**2 + v_e**2) / 2)
+        assert prof.duration == pytest.approx((2 * peak - v_b - v_e) / a, rel=1e-14)
+        assert prof.at(prof.duration)[:2] == (length, v_e)
+        # Seed's cases 3/4/7 plan the same segment, never faster.
+        assert plan_segment(length, v_b, v_e, v_m, a, optimal=False).duration >= prof.duration
+    # Cases 1, 2, 5 and 6 are already optimal: the same with either option.
+    for length, v_b, v_e in [(15.0, 2.0, 8.0), (15.0, 8.0, 2.0), (100.0, 2.0, 10.0)]:
+        fast = plan_segment(length, v_b, v_e, v_m, a)
+        seed = plan_segment(length, v_b, v_e, v_m, a, optimal=False)
+        assert (fast.case, fast.duration) == (seed.case, seed.duration)
+
+
+def test_issue_14_lookahead_numbers():
+    """The issue's figures: the default is the time-optimal plan; the seed's literal cases
+    3-4 crawl along whole segments at the corner speed."""
+    corner = {"v_max": 100, "a_max": 1, "period": 0.002}
+    assert plan_path([[0, 0], [1, 0], [1, 1]], **corner).duration == pytest.approx(3.997, abs=1e-3)
+    seed = plan_path([[0, 0], [1, 0], [1, 1]], **corner, optimal=False)
+    assert seed.duration == pytest.approx(1414.2, abs=0.1)
+    program = {"v_max": 990, "a_max": 148}
+    assert plan_program([0, 100, 101, 0], **program).duration == pytest.approx(3.304, abs=1e-3)
+    seed = plan_program([0, 100, 101, 0], **program, optimal=False)
+    assert seed.duration == pytest.approx(7.639, abs=1e-3)
+
+
+@pytest.mark.parametrize("alpha", [3e-7, 1e-5, 1e-3, 0.5, 2.0, math.pi - 1e-3, math.pi - 1e-7])
+def test_corner_and_contour_caps_accurate_at_every_angle(alpha):
+    """The caps from |u2 - u1| = 2 sin(alpha/2) and |u2 + u1| = 2 cos(alpha/2): within 1e-12
+    of the exact limits, where cos(alpha) lost 0.04 % at a 3e-7 rad kink."""
+    a_max, period, e = 1.0, 0.002, 0.01
+    turn = [1.0 + 10.0 * math.cos(alpha), 10.0 * math.sin(alpha)]
+    # The angle the stored points really make (their rounding), exactly by atan2.
+    d2 = np.subtract(turn, [1.0, 0.0])
+    alpha_true = math.atan2(d2[1], d2[0])
+    for v_max in (1e9, 100.0):
+        plan = plan_path([[0.0, 0.0], [1.0, 0.0], turn], v_max=v_max, a_max=a_max, period=period)
+        corner = a_max * period / (2 * math.sin(alpha_true / 2))
+        reach = math.sqrt(2 * a_max * 1.0)  # forward limit of the first segment
+        assert plan.speeds[1] == pytest.approx(min(corner, reach, v_max), rel=1e-12)
+        assert plan.speeds[1] <= corner * (1 + 1e-14)
+    big = 1e20  # acceleration so high that only the contour limit binds
+    plan = plan_path(
+        [[0.0, 0.0], [1.0, 0.0], turn], v_max=big, a_max=big, period=period, contour_error=e
+    )
+    contour = 2 * e / (period * math.tan(alpha_true / 2))
+    corner = big * period / (2 * math.sin(alpha_true / 2))
+    reach = math.sqrt(2 * big * 1.0)
+    assert plan.speeds[1] == pytest.approx(min(contour, corner, reach), rel=1e-12)
+
+
+def test_near_hairpin_queue_equals_batch_and_does_not_crawl():
+    """A near-reversal with a contour limit: the cap is tiny but exact, the segment after it
+    is planned time-optimally, and streaming gives the batch plan (it gave 2.46e8 s)."""
+    for eps in (0.0, 1e-12, 1e-9, 1e-6):
+        pts = [[0.0, 0.0], [1.0, 0.0], [-2.0, 3.0 * eps]]
+        kw = {"v_max": 10.0, "a_max": 1.0, "period": 0.002, "contour_error": 0.01}
+        batch = plan_path(pts, **kw)
+        q = LookaheadQueue(pts[0], **kw, window=1)
+        released = []
+        for p in pts[1:]:
+            released += q.append(p)
+        released += q.flush()
+        assert sum(s.profile.duration for s in released) == pytest.approx(batch.duration)
+        # Rest to rest over 1 and 3 units at a = 1, stopping (nearly) at the hairpin.
+        assert batch.duration == pytest.approx(2.0 + 2.0 * math.sqrt(3.0), rel=1e-5)
+        assert batch.speeds[1] <= 2 * 0.01 * eps / 0.002 * (1 + 1e-9) + 1e-300
 
 
 def test_segment_shorter_than_l_i_is_refused():
@@ -215,15 +296,15 @@ def test_bad_arguments():
 
 def test_optimal_segments_are_never_slower_and_keep_the_junction_speeds():
     # Case 4 of the seed (cruise at v_b, then decelerate) is slower than rising first.
-    seed = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0)
-    fast = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0, optimal=True)
+    seed = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0, optimal=False)
+    fast = plan_segment(20.0, 8.0, 2.0, 10.0, 2.0)
     assert seed.case == "4" and fast.duration < seed.duration
     assert fast.at(fast.duration)[:2] == (20.0, 2.0)
     rng = np.random.default_rng(9)
     for dim in (1, 2, 3):
         pts = random_polyline(rng, 25, dim)
-        a = plan_path(pts, v_max=8.0, a_max=A, period=0.01)
-        b = plan_path(pts, v_max=8.0, a_max=A, period=0.01, optimal=True)
+        a = plan_path(pts, v_max=8.0, a_max=A, period=0.01, optimal=False)
+        b = plan_path(pts, v_max=8.0, a_max=A, period=0.01)
         assert a.speeds == b.speeds
         for sa, sb in zip(a.segments, b.segments, strict=True):
             assert sb.profile.duration <= sa.profile.duration * (1 + 1e-12)
@@ -232,7 +313,7 @@ def test_optimal_segments_are_never_slower_and_keep_the_junction_speeds():
             assert np.all(ds >= -1e-9) and np.all(ds <= 8.0 * (1 + 1e-9))
             assert np.all(np.abs(dds) <= A * (1 + 1e-9))
             assert s[-1] == pytest.approx(sb.length)
-        q = LookaheadQueue(pts[0], v_max=8.0, a_max=A, period=0.01, window=len(pts), optimal=True)
+        q = LookaheadQueue(pts[0], v_max=8.0, a_max=A, period=0.01, window=len(pts))
         for p in pts[1:]:
             q.append(p)
         released = q.flush()
