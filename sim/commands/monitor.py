@@ -11,23 +11,18 @@ prints the link statistics at the end. ``--interactive`` reads commands from std
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
-from collections.abc import Callable
 from typing import Any
 
 HELP = "talk to a board or to 'serve --pty': send commands, show status, record telemetry CSV"
 
-INTERACTIVE_HELP = """commands (angles in axis degrees):
-  move TARGET_DEG [V_MAX_DPS [A_MAX_DPS2 [J_MAX_DPS3 [trapezoid|scurve|step]]]]
-  stop [A_MAX_DPS2]          clear                     status
-  enable | disable           telemetry DECIMATION      limits V A I_A FOLLOW_DEG
-  gains current|velocity|position KP KI KD               getgains LOOP
-  hello                      quit"""
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("url", help="serial port or pyserial URL, or can://INTERFACE/CHANNEL")
+    parser.add_argument(
+        "url",
+        help="serial port or pyserial URL, can://INTERFACE/CHANNEL, or sim:// (a simulated "
+        "board in this process; sim://BENCH.toml for another bench)",
+    )
     parser.add_argument("--baud", type=int, default=460800, help="serial baud rate (460800)")
     parser.add_argument("--move", type=float, metavar="TARGET_DEG", help="move to this target")
     parser.add_argument("--v-max", type=float, default=990.0, help="v_max in deg/s (990)")
@@ -92,10 +87,10 @@ def main(args: argparse.Namespace) -> int:
         PROTOCOL_VERSION,
         FaultReport,
         Malformed,
-        Nack,
         Telemetry,
     )
     from serial_protocol.telemetry_csv import TelemetryCsvWriter
+    from sim.shell import describe
 
     if not args.ack_timeout > 0 or args.retries < 0:
         raise CommandError(
@@ -104,6 +99,11 @@ def main(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))
+        elif args.url.startswith("sim://"):
+            from sim.simlink import SimulatedLink
+
+            # sim://[BENCH.toml]: a simulated board in this process, in real time
+            link = stack.enter_context(SimulatedLink.open(args.url[len("sim://") :] or None))
         else:
             from serial_protocol.transport import SerialLink
 
@@ -112,7 +112,8 @@ def main(args: argparse.Namespace) -> int:
         writer = None
         if args.csv:
             writer = TelemetryCsvWriter(stack.enter_context(_open(args.csv, "w")))
-        status = _StatusLine(enabled=not args.quiet)
+        # On a terminal the interactive shell shows the status in its toolbar instead.
+        status = _StatusLine(enabled=not (args.quiet or args.interactive))
 
         def on_message(msg: Any) -> None:
             if isinstance(msg, Telemetry):
@@ -120,7 +121,7 @@ def main(args: argparse.Namespace) -> int:
                     writer.write(msg)
                 status.show(msg)
             elif isinstance(msg, FaultReport | Malformed):
-                status.say(f"<- {msg}")
+                status.say(f"<- {describe(msg)}")
 
         client = BoardClient(link, args.ack_timeout, args.retries, on_message=on_message)
         try:
@@ -139,16 +140,14 @@ def main(args: argparse.Namespace) -> int:
                 f"{PROTOCOL_VERSION}"
             )
 
-        def run(label: str, call: Callable[[], Any]) -> None:
-            reply = call()
-            mark = "NACK" if isinstance(reply, Nack) else "ok"
-            status.say(f"-> {label}: {mark} {reply}")
+        def run(label: str, parsed: Any) -> None:
+            status.say(f"-> {label}: {describe(parsed(), parsed.fields)}")
 
         try:
             for text in _scripted(args):
                 run(text, parse_command(client, text))
             if args.interactive:
-                _interactive(client, status, run)
+                _interactive(client, status, args)
             else:
                 _timed(client, args, run)
         except LinkTimeout as exc:
@@ -161,72 +160,11 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def parse_command(client: Any, text: str) -> Callable[[], Any]:
-    """Turn one interactive/scripted command line into a call on ``client``.
+def parse_command(client: Any, text: str) -> Any:
+    """Check one command line and bind it to ``client`` (``sim.shell.parse_command``)."""
+    from sim.shell import parse_command as parse
 
-    Raises ``CommandError`` naming the bad word.
-    """
-    from serial_protocol.exceptions import CommandError
-    from serial_protocol.messages import Loop, Profile
-
-    words = shlex.split(text)
-    if not words:
-        raise CommandError("empty command")
-    verb, rest = words[0].lower(), words[1:]
-
-    def floats(count_min: int, count_max: int) -> list[float]:
-        if not count_min <= len(rest) <= count_max:
-            raise CommandError(f"{text!r}: {verb} takes {count_min}..{count_max} numbers")
-        try:
-            return [float(w) for w in rest]
-        except ValueError:
-            raise CommandError(f"{text!r}: not a number") from None
-
-    def loop(word: str) -> Loop:
-        try:
-            return Loop[word.upper()]
-        except KeyError:
-            raise CommandError(f"{text!r}: loop must be current, velocity or position") from None
-
-    if verb == "move":
-        profile = Profile.TRAPEZOID
-        if rest and rest[-1].upper() in Profile.__members__:
-            profile = Profile[rest.pop().upper()]
-        values = floats(1, 4)
-        defaults = [0.0, 990.0, 148.0, 0.0]
-        values += defaults[len(values) :]
-        return lambda: client.move(*values, profile=profile)
-    if verb == "stop":
-        values = floats(0, 1)
-        return lambda: client.stop(*values)
-    if verb == "gains":
-        if len(rest) != 4:
-            raise CommandError(f"{text!r}: gains LOOP KP KI KD")
-        which = loop(rest[0])
-        rest = rest[1:]
-        kp, ki, kd = floats(3, 3)
-        return lambda: client.set_gains(which, kp, ki, kd)
-    if verb == "getgains":
-        if len(rest) != 1:
-            raise CommandError(f"{text!r}: getgains LOOP")
-        which = loop(rest[0])
-        return lambda: client.get_gains(which)
-    if verb == "limits":
-        values = floats(4, 4)
-        return lambda: client.set_limits(*values)
-    if verb == "telemetry":
-        (value,) = floats(1, 1)
-        return lambda: client.set_telemetry(int(value))
-    simple = {
-        "clear": client.clear_fault,
-        "status": client.status,
-        "hello": client.hello,
-        "enable": lambda: client.set_enable(True),
-        "disable": lambda: client.set_enable(False),
-    }
-    if verb in simple and not rest:
-        return simple[verb]
-    raise CommandError(f"{text!r}: unknown command (type 'help')")
+    return parse(client, text)
 
 
 def _scripted(args: argparse.Namespace) -> list[str]:
@@ -272,32 +210,20 @@ def _timed(client: Any, args: argparse.Namespace, run: Any) -> None:
         client.collect(min(0.05, max(0.0, next_s - now_wall_s)))
 
 
-def _interactive(client: Any, status: Any, run: Any) -> None:
-    import select
+def _interactive(client: Any, status: Any, args: argparse.Namespace) -> None:
+    """The prompt_toolkit shell on a terminal; plain lines from a pipe or a file."""
+    import os
 
-    from serial_protocol.exceptions import CommandError
+    from sim.shell import MonitorShell
 
-    status.say("type 'help' for the commands, 'quit' to end")
-    while True:
-        ready, _, _ = select.select([sys.stdin], [], [], 0.0)
-        if not ready:
-            client.collect(0.05)
-            continue
-        raw = sys.stdin.readline()
-        if not raw:
-            return  # end of input
-        line = raw.strip()
-        if line in ("quit", "exit"):
-            return
-        if not line:
-            continue
-        if line == "help":
-            status.say(INTERACTIVE_HELP)
-            continue
-        try:
-            run(line, parse_command(client, line))
-        except CommandError as exc:
-            status.say(f"error: {exc}")
+    latest = lambda: status.latest  # noqa: E731
+    if sys.stdin.isatty() and sys.stdout.isatty():
+        # The toolbar shows the status; a line drawn on stderr would tear the prompt.
+        status.enabled = False
+        history = os.environ.get("TURNTABLE_SIM_HISTORY", "~/.turntable_sim_history")
+        MonitorShell(client, latest=latest, history_path=os.path.expanduser(history)).run()
+    else:
+        MonitorShell(client, say=status.say, latest=latest).run_lines(sys.stdin)
 
 
 def _report(client: Any, link: Any, writer: Any, args: argparse.Namespace) -> None:
@@ -327,27 +253,28 @@ def _report(client: Any, link: Any, writer: Any, args: argparse.Namespace) -> No
 
 
 class _StatusLine:
-    """One live line on stderr (rewritten in place at most 10 times a second)."""
+    """One live line on stderr (rewritten in place at most 10 times a second, at most 80
+    columns); ``latest`` keeps the last telemetry for the interactive shell's toolbar."""
 
     def __init__(self, enabled: bool) -> None:
         import time
 
         self.enabled = enabled and sys.stderr.isatty()
+        self.latest: Any = None
         self._clock = time.monotonic
         self._last_wall_s = 0.0
 
     def show(self, msg: Any) -> None:
+        self.latest = msg
         if not self.enabled:
             return
         now_wall_s = self._clock()
         if now_wall_s - self._last_wall_s < 0.1:
             return
         self._last_wall_s = now_wall_s
-        sys.stderr.write(
-            f"\rtick {msg.tick:>9}  sp {msg.sp_pos_deg:>11.3f} deg  pos {msg.pos_deg:>11.3f} "
-            f"deg  vel {msg.vel_dps:>8.1f} deg/s  I {msg.current_a:>6.2f} A  "
-            f"{msg.state.name:<8} {msg.fault.name:<15}"
-        )
+        from sim.shell import status_text
+
+        sys.stderr.write("\r\x1b[K" + status_text(msg, 79))
         sys.stderr.flush()
 
     def say(self, text: str) -> None:

@@ -130,13 +130,54 @@ class RecordingClient:
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
-        ("move 100", ("move", (100.0, 990.0, 148.0, 0.0), {"profile": Profile.TRAPEZOID})),
-        ("move -5 10 20 30 scurve", ("move", (-5.0, 10.0, 20.0, 30.0), {"profile": Profile(1)})),
+        (
+            "move 100",
+            (
+                "move",
+                (),
+                {
+                    "target_deg": 100.0,
+                    "v_max_dps": 990.0,
+                    "a_max_dps2": 148.0,
+                    "j_max_dps3": 0.0,
+                    "profile": Profile.TRAPEZOID,
+                },
+            ),
+        ),
+        (
+            "move -5 10 20 30 scurve",
+            (
+                "move",
+                (),
+                {
+                    "target_deg": -5.0,
+                    "v_max_dps": 10.0,
+                    "a_max_dps2": 20.0,
+                    "j_max_dps3": 30.0,
+                    "profile": Profile.SCURVE,
+                },
+            ),
+        ),
         ("stop", ("stop", (), {})),
         ("stop 50", ("stop", (50.0,), {})),
-        ("gains position 3 0 0", ("set_gains", (Loop.POSITION, 3.0, 0.0, 0.0), {})),
+        (
+            "gains position 3 0 0",
+            ("set_gains", (Loop.POSITION,), {"kp": 3.0, "ki": 0.0, "kd": 0.0}),
+        ),
         ("getgains current", ("get_gains", (Loop.CURRENT,), {})),
-        ("limits 990 148 5 10", ("set_limits", (990.0, 148.0, 5.0, 10.0), {})),
+        (
+            "limits 990 148 5 10",
+            (
+                "set_limits",
+                (),
+                {
+                    "v_max_dps": 990.0,
+                    "a_max_dps2": 148.0,
+                    "current_limit_a": 5.0,
+                    "following_error_deg": 10.0,
+                },
+            ),
+        ),
         ("telemetry 2", ("set_telemetry", (2,), {})),
         ("clear", ("clear_fault", (), {})),
         ("enable", ("set_enable", (True,), {})),
@@ -147,7 +188,25 @@ def test_parse_command(text, expected):
 
 
 @pytest.mark.parametrize(
-    "text", ["", "fly 3", "move", "move x", "gains elbow 1 2 3", "stop 1 2", "clear 3"]
+    "text",
+    [
+        "",
+        "fly 3",
+        "move",
+        "move x",
+        "gains elbow 1 2 3",
+        "stop 1 2",
+        "clear 3",
+        "move nan",
+        "move 1e400",
+        "move 10 -inf",
+        "telemetry 2.5",
+        "telemetry -1",
+        "move 1 2 3 scurve",
+        "move 'unclosed",
+        "help",
+        "quit",
+    ],  # fmt: skip
 )
 def test_parse_command_rejects_bad_input(text):
     with pytest.raises(CommandError):
@@ -211,7 +270,10 @@ def test_interactive_session_from_stdin():
 
     board = TcpBoard()
     board.start()
-    script = "help\nstatus\nmove 45 100 200\nfly away\ngains position 2 0 0\nquit\n"
+    script = (
+        "help\nhelp move\nstatus\nmove 45 100 200\nfly away\nmove nan\nmove 1e400\n"
+        "gains position 2 0 0\nquit\n"
+    )
     done = subprocess.run(
         [sys.executable, "-m", "sim.cli", "monitor", board.url, "--interactive",
          "--ack-timeout", "2", "--quiet"],
@@ -219,8 +281,12 @@ def test_interactive_session_from_stdin():
     )  # fmt: skip
     board.join(timeout=5)
     assert done.returncode == 0, done.stderr
-    assert "move TARGET_DEG" in done.stdout  # the help text
+    assert "move the gearmotor output shaft" in done.stdout  # the help text
+    assert "usage: move TARGET_DEG" in done.stdout  # help for one command
     assert "error: 'fly away': unknown command" in done.stdout
+    assert "error: 'move nan': target_deg = 'nan' is not a finite number" in done.stdout
+    assert "error: 'move 1e400': target_deg = '1e400' is not a finite number" in done.stdout
+    assert "move: ok" in done.stdout and "gains: ok" in done.stdout  # replies in words
     names = [type(m).__name__ for m in board.received]
     assert names == ["Hello", "GetStatus", "Move", "SetGains"]
     assert board.received[2] == Move(board.received[2].cmd_id, 45.0, 100.0, 200.0)
