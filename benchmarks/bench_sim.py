@@ -53,8 +53,14 @@ def fig8_experiment(duration_s: float) -> Experiment:
     return Experiment(bench=bench, duration_s=duration_s, commands=cmds)
 
 
+def _one_input(u):
+    """``(duty, enable)`` of member 0 as a float and a bool."""
+    duty, enable = u
+    return float(np.asarray(duty).reshape(-1)[0]), bool(np.asarray(enable).reshape(-1)[0])
+
+
 class SolveIvpPlant:
-    """A plant that calls ``solve_ivp`` once per step, with the ScalarPlant's interface."""
+    """A plant that calls ``solve_ivp`` once per step, with ``Plant``'s interface (N = 1)."""
 
     def __init__(self, params, h_s: float, rtol: float = 1e-10, atol: float = 1e-12) -> None:
         self.params = params
@@ -63,14 +69,14 @@ class SolveIvpPlant:
 
     def update(self, t_s, x, u):
         sol = solve_ivp(
-            lambda t, y: derivative(t, y, u, self.params),
+            lambda t, y: derivative(t, y, _one_input(u), self.params),
             (t_s, t_s + self.h_s),
-            np.asarray(x, dtype=float),
+            np.asarray(x, dtype=float).reshape(5),
             method="DOP853",
             rtol=self.rtol,
             atol=self.atol,
         )
-        return [float(v) for v in sol.y[:, -1]]
+        return sol.y[:, -1].reshape(1, 5)
 
 
 def time_run(exp: Experiment, batch: int | None, repeat: int) -> list[float]:
@@ -223,7 +229,7 @@ def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
 
 
 def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
-    """Plant alone: replay a recorded duty sequence through ScalarPlant and solve_ivp."""
+    """Plant alone: replay a recorded duty sequence through Plant (N = 1) and solve_ivp."""
     n = round(seconds / exp.bench.dt_s)
     sim = Simulation(exp.bench, record_inputs=True)
     from serial_protocol import frame
@@ -231,19 +237,19 @@ def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
     sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
     sim.step(n)
     duty, enable = sim.inputs()
-    from sim.plant import ScalarPlant
+    from sim.plant import Plant
 
-    zoh = ScalarPlant(exp.bench.plant, sim.h_s)
+    zoh = Plant(exp.bench.plant, 1, sim.h_s)
     ivp = SolveIvpPlant(exp.bench.plant, sim.h_s)
     res = {}
     traj = {}
     for name, plant in (("zoh", zoh), ("ivp", ivp)):
-        x = [0.0] * 5
+        x = np.zeros((1, 5))
         pos = []
         t0 = time.perf_counter()
         for k in range(n):
-            x = plant.update(k * sim.h_s, x, (float(duty[k]), bool(enable[k])))
-            pos.append(x[1])
+            x = plant.update(k * sim.h_s, x, (duty[k : k + 1], enable[k : k + 1]))
+            pos.append(x[0, 1])
         res[f"plant_{name}_us_per_step"] = (time.perf_counter() - t0) / n * 1e6
         traj[name] = np.array(pos)
     res["plant_ratio"] = res["plant_ivp_us_per_step"] / res["plant_zoh_us_per_step"]

@@ -31,7 +31,8 @@ from typing import Any
 import numba
 import numpy as np
 
-from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
+from firmware_model.laws import Law
+from firmware_model.laws.layout import P_DUTY, P_IMEAS, P_IREF, P_POS, P_VEL, P_VEL_RAW
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
 from planner.online import OnlinePlanner
@@ -140,17 +141,11 @@ class Firmware:
         self.batch = batch
         self._gain_check = gain_check
         self._scalar = batch is None
-        fixed = params.servo.arithmetic == "fixed"
-        self._array_law = batch is not None
-        self.law: ScalarLaw | ScalarFixedLaw | ArrayLaw
-        if self._array_law:
-            self.law = ArrayLaw(params, batch, fixed=fixed)
-        elif fixed:
-            self.law = ScalarFixedLaw(params)
-        else:
-            self.law = ScalarLaw(params)
         n = batch or 1
+        # One law for every N: one axis is a batch of one (scalars only at this API's edge).
+        self.law = Law(params, n)
         self._n = n
+        self._raw = np.zeros(n, dtype=np.int64)  # the encoder reading of a single axis
         self.dt_s = params.servo.dt_s
         self.tick = 0
         self._booted = False
@@ -229,6 +224,15 @@ class Firmware:
             tx_free: free bytes in the TX FIFO; only whole frames that fit are written.
         """
         law = self.law
+        if self._scalar:
+            self._raw[0] = encoder_counts
+            encoder_counts = self._raw
+        elif not (
+            isinstance(encoder_counts, np.ndarray)
+            and encoder_counts.dtype == np.int64
+            and encoder_counts.shape == (self._n,)
+        ):
+            encoder_counts = np.broadcast_to(np.asarray(encoder_counts, dtype=np.int64), (self._n,))
         if not self._booted:
             self._boot(encoder_counts)
         law.estimate(encoder_counts)
@@ -248,13 +252,9 @@ class Firmware:
         else:
             p, v, a = self.sp_pos_deg, 0.0, 0.0
         self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2 = p, v, a
-        if not self._array_law:
-            if self._enabled_s:
-                law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
-                self._check_scalar()
-        elif self._enabled.any():
+        if self._enabled_s or (not self._scalar and self._enabled.any()):
             law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
-            self._check_array()
+            self._check()
         self.tick += 1
         return self._transmit(tx_free)
 
@@ -269,22 +269,25 @@ class Firmware:
             current-loop period, and ``enable`` (False: bridge off, the motor coasts).
         """
         law = self.law
-        if not self._array_law:
-            enabled = self._enabled_s
-            duty = law.current(adc_counts, enabled)
-            if enabled:
-                if abs(law.current_meas_a) > self._oc_thr_a:
+        if self._scalar:
+            adc = self._raw
+            adc[0] = adc_counts
+        else:
+            adc = np.asarray(adc_counts, dtype=np.int64)
+        enabled = self._enabled.copy()
+        duty = law.current(adc, enabled)
+        i_meas = law.current_meas_a
+        if self._scalar:
+            if self._enabled_s:
+                if abs(i_meas[0]) > self._oc_thr_a:
                     self._oc_s += 1
                     if self._oc_s >= self._oc_samples:
-                        self._trip(np.array([True]), Fault.OVER_CURRENT, law.current_meas_a)
-                        law.reset_control()
+                        self._trip(np.array([True]), Fault.OVER_CURRENT, i_meas[0])
                         return 0.0, False
                 else:
                     self._oc_s = 0
-            return duty, enabled
-        enabled = self._enabled.copy()
-        duty = law.current(adc_counts, enabled)
-        i_meas = law.current_meas_a
+            return float(duty[0]), self._enabled_s
+        duty = duty.copy()  # the caller may keep it; the law's view changes next period
         abs_i = np.abs(i_meas)
         if abs_i.max() <= self._oc_thr_a:  # the common case: one reduction
             if self._oc_s:
@@ -297,8 +300,7 @@ class Firmware:
         trip = self._oc_ticks >= self._oc_samples
         if trip.any():
             self._trip(trip, Fault.OVER_CURRENT, i_meas)
-            law.reset_control(trip)
-            duty = law.duty
+            duty = law.duty.copy()
             enabled = self._enabled.copy()
         return duty, enabled
 
@@ -310,49 +312,23 @@ class Firmware:
         ``current_ref_a``, ``duty``, ``state``, ``fault``. Batch arrays are not updated in
         place (each tick makes new ones); ``state`` and ``fault`` arrays are read-only.
         """
-        law = self.law
-        if not self._array_law:
-            return {
-                "sp_pos_deg": self.sp_pos_deg,
-                "sp_vel_dps": self.sp_vel_dps,
-                "sp_acc_dps2": self.sp_acc_dps2,
-                "pos_deg": law.pos_deg,
-                "vel_dps": law.vel_dps,
-                "vel_raw_dps": law.vel_raw_dps,
-                "current_meas_a": law.current_meas_a,
-                "current_ref_a": law.current_ref_a,
-                "duty": law.duty,
-                "state": self.state,
-                "fault": self._fault_s,
-            }
-        state = self.state
-        fault = self.fault
-        out = {
-            "sp_pos_deg": self.sp_pos_deg,
-            "sp_vel_dps": self.sp_vel_dps,
-            "sp_acc_dps2": self.sp_acc_dps2,
-            "pos_deg": law.pos_deg,
-            "vel_dps": law.vel_dps,
-            "vel_raw_dps": law.vel_raw_dps,
-            "current_meas_a": law.current_meas_a,
-            "current_ref_a": law.current_ref_a,
-            "duty": law.duty,
-            "state": state,
-            "fault": fault,
-        }
-        return out
+        return dict(zip(SIGNAL_NAMES, self.signal_row(), strict=True))
 
     def signal_row(self) -> tuple[Any, ...]:
         """``signals()`` as a tuple in the order of :data:`SIGNAL_NAMES` (the simulation
         loop logs one per tick; a tuple costs a third of the dict)."""
-        if not self._array_law:
-            law = self.law
+        p = self.law.P
+        if self._scalar:
             return (
-                self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2, law.pos_deg, law.vel_dps,
-                law.vel_raw_dps, law.current_meas_a, law.current_ref_a, law.duty, self.state,
-                self._fault_s,
+                self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2, float(p[P_POS, 0]),
+                float(p[P_VEL, 0]), float(p[P_VEL_RAW, 0]), float(p[P_IMEAS, 0]),
+                float(p[P_IREF, 0]), float(p[P_DUTY, 0]), self.state, self._fault_s,
             )  # fmt: skip
-        return tuple(self.signals().values())
+        return (
+            self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2, p[P_POS].copy(),
+            p[P_VEL].copy(), p[P_VEL_RAW].copy(), p[P_IMEAS].copy(), p[P_IREF].copy(),
+            p[P_DUTY].copy(), self.state, self.fault,
+        )  # fmt: skip
 
     @property
     def state(self) -> Any:
@@ -406,8 +382,7 @@ class Firmware:
             self._enable()
 
     def _pos0(self) -> float:
-        pos = self.law.pos_deg
-        return float(pos) if isinstance(pos, float) else float(pos[0])
+        return float(self.law.pos_deg[0])
 
     def _enable(self) -> None:
         ok = self._fault == 0
@@ -436,30 +411,12 @@ class Firmware:
         # Settled: within in_position_deg and slower than in_position_deg per 0.1 s.
         tol = self.params.limits.in_position_deg
         law = self.law
-        if not self._array_law:
-            return abs(law.pos_deg - self._target_deg) <= tol and abs(law.vel_dps) <= 10 * tol
         ok = (np.abs(law.pos_deg - self._target_deg) <= tol) & (np.abs(law.vel_dps) <= 10 * tol)
         live = self._enabled
         return bool(np.all(ok[live])) if live.any() else True
 
     # ------------------------------------------------------------------ safety
-    def _check_scalar(self) -> None:
-        law, s = self.law, self.params.safety
-        if abs(law.innovation_counts) > s.encoder_jump_counts or (
-            law.stuck_ticks >= s.encoder_stuck_ticks
-            and abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps
-        ):
-            self._trip(np.array([True]), Fault.ENCODER, float(law._raw_prev))
-        elif abs(law.vel_dps) > s.over_speed_dps:
-            self._trip(np.array([True]), Fault.OVER_SPEED, law.vel_dps)
-        elif self._mode != "step" and abs(self.sp_pos_deg - law.pos_deg) > (
-            self.following_error_deg
-        ):
-            self._trip(np.array([True]), Fault.FOLLOWING_ERROR, self.sp_pos_deg - law.pos_deg)
-        elif self._watchdog_ticks and self.tick - self._last_rx_tick > self._watchdog_ticks:
-            self._trip(np.array([True]), Fault.WATCHDOG, float(self.tick - self._last_rx_tick))
-
-    def _check_array(self) -> None:
+    def _check(self) -> None:
         law, s = self.law, self.params.safety
         following = self._mode != "step"
         watchdog = bool(self._watchdog_ticks) and (
@@ -482,7 +439,7 @@ class Firmware:
             (stuck >= s.encoder_stuck_ticks)
             & (np.abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps)
         )
-        self._trip(live & enc, Fault.ENCODER, law._raw_prev.astype(float))
+        self._trip(live & enc, Fault.ENCODER, law.raw_counts.astype(float))
         live &= ~enc
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel)
@@ -508,10 +465,7 @@ class Firmware:
         hits = int(mask.sum())
         self._counts["faults"] += hits
         self._counts[f"fault_{fault.name}"] += hits
-        if self._array_law:
-            self.law.reset_control(mask)
-        else:
-            self.law.reset_control()
+        self.law.reset_control(mask)
         if mask[0]:
             v = float(value) if np.ndim(value) == 0 else float(np.asarray(value)[0])
             self._queue(FaultReport(tick=self.tick, fault=fault, value=v))
@@ -564,11 +518,10 @@ class Firmware:
                 counts_per_rev=16384,
             )  # fmt: skip
         if isinstance(msg, GetStatus):
-            vel = self.law.vel_dps
             return Status(
                 cmd_id=msg.cmd_id, tick=self.tick, state=State(self._state0()),
                 fault=Fault(int(self._fault[0])), pos_deg=self._pos0(),
-                vel_dps=float(vel) if isinstance(vel, float) else float(vel[0]),
+                vel_dps=float(self.law.vel_dps[0]),
                 target_deg=self._target_deg if self._moved else self.sp_pos_deg,
             )  # fmt: skip
         if isinstance(msg, GetGains):
@@ -796,14 +749,10 @@ class Firmware:
 
     def _telemetry(self) -> bytes:
         """The telemetry frame of this tick (member 0), framed with the next sequence."""
-        law = self.law
-        if self._array_law:
-            pos, vel = float(law.pos_deg[0]), float(law.vel_dps[0])
-            cur, duty = float(law.current_meas_a[0]), float(law.duty[0])
-            state, fault = self._state0(), int(self._fault[0])
-        else:
-            pos, vel, cur, duty = law.pos_deg, law.vel_dps, law.current_meas_a, law.duty
-            state, fault = self.state, self._fault_s
+        p = self.law.P
+        pos, vel = float(p[P_POS, 0]), float(p[P_VEL, 0])
+        cur, duty = float(p[P_IMEAS, 0]), float(p[P_DUTY, 0])
+        state, fault = self._state0(), int(self._fault[0])
         return frame.encode_telemetry_fields(
             self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
             state, fault,

@@ -1,18 +1,11 @@
 """The control law of one servo tick: encoder unwrap, velocity observer, position P ->
 velocity PI -> current PI -> PWM duty, with clamps and anti-windup.
 
-Interchangeable implementations with the same methods and attributes (``firmware_model/laws/``,
-one per file):
-
-* :class:`ScalarLaw`: one axis in plain Python floats (the fast path for ``batch=None``).
-* :class:`ScalarFixedLaw`: one axis in saturating int32 Q16.16 / Q8.24 on Python ints
-  (``arithmetic = "fixed"``, ``batch=None``).
-* :class:`ArrayLaw`: ``N`` axes in lock-step on numpy arrays of shape ``(N,)``, in float64
-  (compiled loops over the members, ``laws/array_float.py``) or in saturating int32
-  Q-format (``fixed=True``; see ``firmware_model/fixedpoint.py``).
-
-``ArrayLaw`` with N = 1 computes bit for bit what the scalar law of the same arithmetic
-computes (tested): the same operations in the same order.
+One implementation per arithmetic, each written once for ``N`` members (one axis is
+N = 1): ``firmware_model/laws/float64.py`` (float64) and ``firmware_model/laws/fixed_q.py``
+(saturating int32 Q16.16 / Q8.24, ``arithmetic = "fixed"``; see
+``firmware_model/fixedpoint.py``), both compiled with numba, over the state arrays of
+``firmware_model/laws/layout.py``; :class:`Law` holds that state and calls them.
 
 The order of one servo tick (seed 000 Fig. 5), with the firmware's shell around it:
 
@@ -37,6 +30,6 @@ The order of one servo tick (seed 000 Fig. 5), with the firmware's shell around 
 
 from __future__ import annotations
 
-from firmware_model.laws import GAIN_NAMES, ArrayLaw, LawBase, ScalarFixedLaw, ScalarLaw
+from firmware_model.laws import GAIN_NAMES, Law
 
-__all__ = ["ArrayLaw", "GAIN_NAMES", "LawBase", "ScalarFixedLaw", "ScalarLaw"]
+__all__ = ["GAIN_NAMES", "Law"]

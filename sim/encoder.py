@@ -22,52 +22,53 @@ __all__ = ["Encoder"]
 
 
 class Encoder:
-    """Reads counts from a plant state; ``read`` for N = 1 lists, ``read_batch`` for (N, 5)."""
+    """Reads the counts of N members from plant states ``(N, 5)`` (``read``).
+
+    Noise: standard normals are drawn from ``rng`` in blocks of 4096 ticks x N (row k is
+    tick k's draw for every member), the same stream as one draw of N per tick."""
 
     def __init__(self, params: EncoderParams, rng: np.random.Generator) -> None:
         self.params = params
         self.rng = rng
         self.counts_per_rev = params.counts_per_rev
         self._counts_per_rad = self.counts_per_rev / (2.0 * math.pi)
-        self._latency_s = params.latency_s
-        self._noise = params.noise_rms_lsb
-        self._offset = params.offset_counts
-        self._block: list[float] = []
-        self._noisy = bool(np.any(self._noise))
-        self._batch_n = 0
-        self._batch_params: tuple[np.ndarray, ...] = ()
+        self._noisy = bool(np.any(params.noise_rms_lsb))
+        self._n = 0
+        self._params: tuple[np.ndarray, ...] = ()
+        self._block = np.empty((0, 0))
+        self._row = 0
 
-    def read(self, x: list[float]) -> int:
-        """Counts in ``[0, counts_per_rev)`` for a single state list (fast path)."""
-        c = (x[POS] - x[VEL] * self._latency_s) * self._counts_per_rad + self._offset
-        if self._noise:
-            if not self._block:
-                # Drawn in blocks (a numpy call per read would cost more than the read).
-                self._block = (self._noise * self.rng.standard_normal(4096)).tolist()[::-1]
-            c += self._block.pop()
-        return math.floor(c) % self.counts_per_rev
-
-    def read_batch(self, x: np.ndarray) -> np.ndarray:
-        """Counts (int64 array (N,)) for states of shape (N, 5)."""
+    def read(self, x: np.ndarray) -> np.ndarray:
+        """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``."""
         n = x.shape[0]
-        if self._batch_n != n:
-            self._batch_n = n
-            self._batch_params = tuple(
-                per_member(v, n) for v in (self._latency_s, self._offset, self._noise)
+        if self._n != n:
+            p = self.params
+            self._n = n
+            self._params = tuple(
+                per_member(v, n) for v in (p.latency_s, p.offset_counts, p.noise_rms_lsb)
             )
-        draw = self.rng.standard_normal(n) if self._noisy else _NO_DRAW
+        if self._noisy:
+            if self._row == self._block.shape[0]:
+                # Drawn in blocks (a numpy call per read would cost more than the read).
+                self._block = self.rng.standard_normal((_BLOCK, n))
+                self._row = 0
+            draw = self._block[self._row]
+            self._row += 1
+        else:
+            draw = _NO_DRAW
         counts = np.empty(n, dtype=np.int64)
-        _read_batch(x, *self._batch_params, draw, self._counts_per_rad, self.counts_per_rev, counts)
+        _read(x, *self._params, draw, self._counts_per_rad, self.counts_per_rev, counts)
         return counts
 
 
+_BLOCK = 4096
 _NO_DRAW = np.empty(0)
 
 
 @numba.njit(cache=True)
-def _read_batch(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_per_rev, out):
-    """``Encoder.read`` per member (the same operations in the same order); ``draw`` holds
-    one standard normal per member, or nothing for a noiseless encoder."""
+def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_per_rev, out):
+    """The reading of each member; ``draw`` holds one standard normal per member, or
+    nothing for a noiseless encoder."""
     noisy = draw.shape[0] > 0
     for j in range(x.shape[0]):
         c = (x[j, POS] - x[j, VEL] * latency_s[j]) * counts_per_rad + offset_counts[j]

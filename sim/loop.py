@@ -15,11 +15,10 @@ boundary"):
 5. both UART directions move the bytes of one tick: PC -> board bytes arrive for the next
    servo tick, board -> PC bytes are buffered for ``pc_read()``.
 
-The N = 1 path works on plain Python floats and appends three items per tick to lists (the
-plant state, the firmware's signals as a row, the bridge voltage), turned into columns by
-``log()``; the batch path (``batch=N``) keeps ``(N, 5)`` arrays and writes rows of
-preallocated ``(capacity, N)`` log arrays. The scripted PC of ``run`` writes its frames
-with ``pc_write`` at their times, exactly as a PC program would.
+One path for every N: one axis (``batch=None``) is a batch of one, with scalars only where
+the firmware's API takes them. The plant states are ``(N, 5)`` arrays, the log rows of
+preallocated ``(capacity, N)`` arrays. The scripted PC of ``run`` writes its frames with
+``pc_write`` at their times, exactly as a PC program would.
 """
 
 from __future__ import annotations
@@ -28,7 +27,6 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from itertools import chain
 from operator import itemgetter
 from typing import Any
 
@@ -43,7 +41,7 @@ from serial_protocol.uart import EmulatedUart, FaultInjection
 from sim.config import TABLES, BenchConfig, Experiment
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams, per_member
-from sim.plant import I_A, TWIST, VEL, BatchPlant, ScalarPlant
+from sim.plant import I_A, TWIST, VEL, Plant
 
 __all__ = ["LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run"]
 
@@ -276,26 +274,17 @@ class Simulation:
         self.fw = firmware
         self._rng = np.random.default_rng(seed)
         plant = bench.plant
+        n = self.n = batch or 1
+        self._scalar = batch is None
         self.encoder = Encoder(plant.encoder, self._rng)
-        levels = bench.loop.event_levels
-        self._sense = plant.current_sense
-        self._a_per_lsb = float(np.asarray(plant.current_sense.a_per_lsb).flat[0])
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
-        self._adc_noise = plant.current_sense.noise_rms_lsb
-        self._adc_noisy = bool(np.any(self._adc_noise))
-        self._vs = plant.supply.voltage_v
-        self._bridge = plant.bridge
-        self._arr = float(np.asarray(plant.bridge.arr).flat[0])
+        self._adc_noisy = bool(np.any(plant.current_sense.noise_rms_lsb))
         self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
         self._n_total = plant.total_ratio
-        if batch is None:
-            self.plant: ScalarPlant | BatchPlant = ScalarPlant(plant, self.h_s, levels)
-            self._x: Any = (0.0,) * 5
-        else:
-            self.plant = BatchPlant(plant, batch, self.h_s, levels)
-            self._x = np.zeros((batch, 5))
-        self._duty: Any = 0.0 if batch is None else np.zeros(batch)
-        self._enable: Any = False if batch is None else np.zeros(batch, dtype=bool)
+        self.plant = Plant(plant, n, self.h_s, bench.loop.event_levels)
+        self._x = np.zeros((n, 5))
+        self._duty = np.zeros(n)
+        self._enable = np.zeros(n, dtype=bool)
         uart = bench.uart
         baud = bench.firmware.telemetry.baud
         faults = uart_faults(uart)
@@ -308,28 +297,31 @@ class Simulation:
         self._record_inputs = record_inputs
         self._keep_log = keep_log
         self._inputs: list[tuple[Any, Any]] = []
-        if batch is None:
-            # Per tick: the plant state at the sample, the firmware's signals, the bridge
-            # voltage; turned into columns by log().
-            self._xs: list[tuple[float, ...]] = []
-            self._sigs: list[tuple[Any, ...]] = []
-            self._volts: list[float] = []
-        else:
-            self._cap = 0
-            self._arrays: dict[str, np.ndarray] = {}
-            self._xlog = np.empty((0, batch, 5))
-            # The IS pin reads the current in the direction of the applied duty, from the
-            # high side only (sim.bridge.sensed_current_a): sign(duty), 0 while disabled.
-            self._sense_sign = np.zeros(batch)
-            # The bridge voltage of the last current-loop period (the log's voltage_v).
-            self._volt = np.zeros(batch)
-            # Parameters as (N,) arrays for the kernels (each may be scalar or (N,)).
-            parameters = (
-                plant.current_sense.a_per_lsb, self._adc_noise, plant.bridge.arr, self._vs,
-            )  # fmt: skip
-            self._a_per_lsb_n, self._adc_noise_n, self._arr_n, self._vs_n = (
-                per_member(v, batch) for v in parameters
-            )
+        self._cap = 0
+        self._arrays: dict[str, np.ndarray] = {}
+        self._xlog = np.empty((0, n, 5))
+        # The IS pin reads the current in the direction of the applied duty, from the
+        # high side only (sim.bridge.sensed_current_a): sign(duty), 0 while disabled.
+        self._sense_sign = np.zeros(n)
+        self._one_duty, self._one_enable = np.zeros(1), np.zeros(1, dtype=bool)
+        # The bridge voltage of the last current-loop period (the log's voltage_v).
+        self._volt = np.zeros(n)
+        # Parameters as (N,) arrays for the kernels (each may be scalar or (N,)).
+        parameters = (
+            plant.current_sense.a_per_lsb, plant.current_sense.noise_rms_lsb, plant.bridge.arr,
+            plant.supply.voltage_v,
+        )  # fmt: skip
+        self._a_per_lsb_n, self._adc_noise_n, self._arr_n, self._vs_n = (
+            per_member(v, n) for v in parameters
+        )
+        signal_row = getattr(firmware, "signal_row", None)
+        if signal_row is None:
+            pick, signals = itemgetter(*FW_FIELDS), firmware.signals
+
+            def signal_row() -> tuple[Any, ...]:
+                return pick(signals())
+
+        self._signal_row = signal_row
 
     # ---------------------------------------------------------------- public API
     @property
@@ -340,7 +332,7 @@ class Simulation:
     @property
     def plant_state(self) -> np.ndarray:
         """A copy of the plant state, ``(5,)`` or ``(N, 5)`` (see ``sim.plant``)."""
-        return np.array(self._x, dtype=float)
+        return np.array(self._x[0] if self._scalar else self._x, dtype=float)
 
     def pc_write(self, data: bytes) -> None:
         """Bytes from the PC to the board; they enter the board's RX line as it has room."""
@@ -356,46 +348,25 @@ class Simulation:
         """``(duty, enable)`` of every plant step so far (needs ``record_inputs=True``)."""
         if not self._record_inputs:
             raise ValueError("record_inputs = False: construct the Simulation with True")
-        duty = np.array([d for d, _ in self._inputs], dtype=float)
-        enable = np.array([e for _, e in self._inputs], dtype=bool)
+        duty = np.array([d for d, _ in self._inputs], dtype=float).reshape(-1, self.n)
+        enable = np.array([e for _, e in self._inputs], dtype=bool).reshape(-1, self.n)
+        if self._scalar:
+            return duty[:, 0], enable[:, 0]
         return duty, enable
 
     def step(self, n_ticks: int = 1) -> None:
         """Advance ``n_ticks`` servo ticks."""
-        if self.batch is None:
-            self._steps_scalar(n_ticks)
-        else:
-            for _ in range(n_ticks):
-                self._step_batch()
+        for _ in range(n_ticks):
+            self._step()
 
     def log(self) -> RunLog:
         """The log so far as numpy arrays (copies)."""
         if not self._keep_log:
             raise ValueError("keep_log = False: this Simulation keeps no log")
-        if self.batch is None:
-            n = len(self._xs)
-            # fromiter over the flattened rows: several times faster than np.array(list).
-            x = np.fromiter(chain.from_iterable(self._xs), dtype=float, count=5 * n)
-            x = x.reshape(n, 5)
-            k = len(FW_FIELDS)
-            rows = chain.from_iterable(self._sigs)
-            table = np.fromiter(rows, dtype=float, count=k * n).reshape(n, k)
-            cols = {
-                f: table[:, j].astype(np.int64) if f in _INT_FIELDS else table[:, j].copy()
-                for j, f in enumerate(FW_FIELDS)
-            }
-            cols["t_s"] = np.arange(n) * self.dt_s
-            cols["true_pos_deg"] = x[:, 1] * self._deg_per_rad_axis
-            cols["true_vel_dps"] = x[:, VEL] * self._deg_per_rad_axis
-            cols["platter_pos_deg"] = np.degrees(x[:, 1] / self._n_total - x[:, TWIST])
-            cols["motor_pos_rad"] = x[:, 1].copy()
-            cols["current_a"] = x[:, I_A].copy()
-            cols["voltage_v"] = np.array(self._volts, dtype=float)
-            return RunLog(**cols)
-        return self._batch_log(copy=True)
+        return self._log(copy=True)
 
-    def _batch_log(self, *, copy: bool) -> RunLog:
-        """The batch log so far; ``copy=False`` hands out views of the log buffers instead
+    def _log(self, *, copy: bool) -> RunLog:
+        """The log so far; ``copy=False`` hands out views of the log buffers instead
         of copies, for a caller that discards the simulation (``run``). The loop only ever
         writes rows after ``tick``, so the views never change."""
         n = self.tick
@@ -415,7 +386,8 @@ class Simulation:
         cols["motor_pos_rad"] = columns(pos)
         cols["current_a"] = columns(x[:, :, I_A])
         cols["t_s"] = np.arange(n) * self.dt_s
-        return RunLog(**cols)
+        log = RunLog(**cols)
+        return log.member(0) if self._scalar else log
 
     def link_stats(self) -> dict[str, int]:
         """UART counters of both directions, prefixed ``tx_`` (board -> PC) and ``rx_``."""
@@ -437,77 +409,9 @@ class Simulation:
         self._rx_for_board = rx.advance(self.dt_s) if rx.pending else b""
         self._pc_in += self.uart_tx.advance(self.dt_s)
 
-    def _steps_scalar(self, n_ticks: int) -> None:
-        """``n_ticks`` servo ticks of the N = 1 path. The objects and constants of the tick
-        are held in locals for the whole call (attribute loads cost as much as the plant's
-        arithmetic at ~10 us per tick); the tick state is stored back on return."""
-        fw = self.fw
-        servo_tick, current_tick = fw.servo_tick, fw.current_tick
-        signal_row = getattr(fw, "signal_row", None)
-        if signal_row is None:
-            pick, signals = itemgetter(*FW_FIELDS), fw.signals
-
-            def signal_row() -> tuple[Any, ...]:
-                return pick(signals())
-
-        update = self.plant.update
-        read_encoder = self.encoder.read
-        uart_tx, uart_rx = self.uart_tx, self.uart_rx
-        keep, record = self._keep_log, self._record_inputs
-        a_per_lsb, arr, adc_full = self._a_per_lsb, self._arr, self._adc_full
-        adc_noise = self._adc_noise
-        vs, dt_s, h_s, multiple = self._vs, self.dt_s, self.h_s, self.multiple
-        pc_out, pc_in = self._pc_out, self._pc_in
-        log_x, log_sig, log_volts = self._xs.append, self._sigs.append, self._volts.append
-        x, d, en, tick, rx_bytes = self._x, self._duty, self._enable, self.tick, self._rx_for_board
-        try:
-            for _ in range(n_ticks):
-                if keep:
-                    log_x(x)  # the plant state at the sampling instant (never mutated)
-                t = tick * dt_s
-                tx = servo_tick(read_encoder(x), rx_bytes, uart_tx.free)
-                if tx:
-                    uart_tx.write(tx)
-                for _ in range(multiple):
-                    i = x[I_A]
-                    if en and d:
-                        sensed = i if d > 0 else -i
-                        sensed = sensed if sensed > 0 else 0.0
-                    else:
-                        sensed = 0.0
-                    c = sensed / a_per_lsb + 0.5
-                    if adc_noise:
-                        c += adc_noise * self._rng.standard_normal()
-                    adc = math.floor(c)
-                    adc = 0 if adc < 0 else (adc_full if adc > adc_full else adc)
-                    duty, enable = current_tick(adc)
-                    # The timer can only produce whole compare steps (idempotent for a
-                    # firmware that already quantises).
-                    d = float(duty)
-                    d = round((-1.0 if d < -1.0 else (1.0 if d > 1.0 else d)) * arr) / arr
-                    en = bool(enable)
-                    if record:
-                        self._inputs.append((d, en))
-                    x = update(t, x, (d, en))
-                    t += h_s
-                tick += 1
-                if keep:
-                    log_sig(signal_row())
-                    log_volts(d * vs if en else 0.0)
-                # Both UART directions move one tick of bytes (_move_bytes).
-                if pc_out:
-                    del pc_out[: uart_rx.write(bytes(pc_out[: uart_rx.free]))]
-                # An empty RX line is idle (its advance would return nothing and change
-                # nothing): skip the call, the PC sends rarely.
-                rx_bytes = uart_rx.advance(dt_s) if uart_rx.pending else b""
-                pc_in += uart_tx.advance(dt_s)
-        finally:
-            self._x, self._duty, self._enable, self.tick = x, d, en, tick
-            self._rx_for_board = rx_bytes
-
     def _grow(self, min_cap: int = 0) -> None:
         cap = max(1024, 2 * self._cap, min_cap)
-        n = self.batch
+        n = self.n
         for f in (*FW_FIELDS, "voltage_v"):
             dtype = np.int64 if f in _INT_FIELDS else float
             new = np.empty((cap, n), dtype=dtype)  # row per tick: contiguous writes
@@ -522,25 +426,28 @@ class Simulation:
 
     def reserve(self, n_ticks: int) -> None:
         """Make room for ``n_ticks`` more log rows at once (batch; ``run`` calls it)."""
-        if self.batch is not None and self._keep_log and self.tick + n_ticks > self._cap:
+        if self._keep_log and self.tick + n_ticks > self._cap:
             self._grow(self.tick + n_ticks)
 
-    def _step_batch(self) -> None:
+    def _step(self) -> None:
+        """One servo tick (the module docstring's order)."""
         fw = self.fw
         x = self._x
         k = self.tick
         keep = self._keep_log
+        scalar = self._scalar
         if keep:
             if k >= self._cap:
                 self._grow()
             # The plant state at the sampling instant, where the firmware sees it.
             self._xlog[k] = x
-        counts = self.encoder.read_batch(x)
-        tx = fw.servo_tick(counts, self._rx_for_board, self.uart_tx.free)
+        counts = self.encoder.read(x)
+        tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
+                           self.uart_tx.free)  # fmt: skip
         if tx:
             self.uart_tx.write(tx)
         t = k * self.dt_s
-        n = self.batch
+        n = self.n
         for _ in range(self.multiple):
             # sim.bridge.sensed_current_a and adc_counts, with the duty's sign kept from
             # the last period.
@@ -548,11 +455,16 @@ class Simulation:
             adc = np.empty(n, dtype=np.int64)
             _adc_counts(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
                         self._adc_full, adc)  # fmt: skip
-            duty, enable = fw.current_tick(adc)
-            if not (isinstance(duty, np.ndarray) and duty.shape == (n,)):
-                duty = np.broadcast_to(np.asarray(duty, dtype=float), (n,))
-            if not (isinstance(enable, np.ndarray) and enable.shape == (n,)):
-                enable = np.broadcast_to(np.asarray(enable, dtype=bool), (n,))
+            if scalar:  # the one-axis API: floats in and out
+                duty_in, enable_in = self._one_duty, self._one_enable
+                duty_in[0], enable_in[0] = fw.current_tick(int(adc[0]))
+                duty, enable = duty_in, enable_in
+            else:
+                duty, enable = fw.current_tick(adc)
+                if not (isinstance(duty, np.ndarray) and duty.shape == (n,)):
+                    duty = np.broadcast_to(np.asarray(duty, dtype=float), (n,))
+                if not (isinstance(enable, np.ndarray) and enable.shape == (n,)):
+                    enable = np.broadcast_to(np.asarray(enable, dtype=bool), (n,))
             # New arrays (the firmware may reuse its own), the duty on the timer's steps
             # (sim.bridge.quantise_duty).
             d, en = np.empty(n), np.empty(n, dtype=bool)
@@ -564,10 +476,9 @@ class Simulation:
             t += self.h_s
         self._x = x
         if keep:
-            sig = fw.signals()
             arrays = self._arrays
-            for f in FW_FIELDS:
-                arrays[f][k] = sig[f]
+            for f, v in zip(FW_FIELDS, self._signal_row(), strict=True):
+                arrays[f][k] = v
             arrays["voltage_v"][k] = self._volt
         self.tick += 1
         self._move_bytes()
@@ -620,7 +531,7 @@ def run(
             progress(tick, n_ticks)
     counters = dict(getattr(sim.fw, "counters", {}))
     # The simulation ends here: a batch log's buffers become the result's, without copies.
-    log = sim.log() if batch is None else sim._batch_log(copy=False)
+    log = sim._log(copy=False)
     return RunResult(log, sim.pc_read(), sim.link_stats(), exp, counters)
 
 
@@ -639,19 +550,19 @@ _NO_DRAW = np.empty(0)
 def _adc_counts(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out):
     """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
     current in the direction of ``sense_sign``, the high side only) through
-    ``sim.bridge.adc_counts``, the operations of the former numpy code in its order.
+    ``sim.bridge.adc_counts`` (rounded to nearest, plus noise, clamped to the ADC range).
     ``draw``: one standard normal per member, or nothing for a noiseless ADC."""
     noisy = draw.shape[0] > 0
     for j in range(x.shape[0]):
         v = sense_sign[j] * x[j, I_A]
         c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
-        c = c / a_per_lsb[j]
+        c = c / a_per_lsb[j] + 0.5
         if noisy:
             c = c + noise_lsb[j] * draw[j]
-        c = np.floor(c + 0.5)
+        c = np.floor(c)
         if c > adc_full:
             c = adc_full
-        if noisy and c < 0.0:
+        if c < 0.0:
             c = 0.0
         out[j] = np.int64(c)
 

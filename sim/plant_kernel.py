@@ -1,18 +1,20 @@
-"""``ScalarPlant.update`` compiled: one call per plant step instead of ~40 Python-level
-operations, the same arithmetic in the same order (numba, no ``fastmath``), so the states
-are bit for bit those of the Python recursion (``tests/sim/test_plant_kernel.py``).
+"""The plant step of ``sim.plant.Plant``, compiled (numba, no ``fastmath``): ``step`` is one
+member's step (the recursion over halved sub-steps), ``step_members`` runs it for every
+member in one call. The one implementation for every N.
 
-The kernel is pure: the matrices come in as tables filled by ``ScalarPlant`` (a mode it
-has not seen yet is returned as ``need`` and the caller loads it and calls again), and the
-event count, the end mode and the new state go out as return values.
+The kernel is pure: the matrices come in as tables filled by ``Plant`` (a mode it has not
+seen yet is returned as ``need`` and the caller loads it and calls again), and the event
+count, the end mode and the new state go out as return values.
 
-Tables (``M`` modes loaded so far, ``L = event_levels``):
+Tables (``M`` modes loaded so far, ``L = event_levels``, ``G`` parameter sets):
 
-- ``slots`` ``(N_MODES,)`` int64: row of a mode in the tables, -1 if not loaded;
+- ``slots`` ``(N_MODES,)`` int64 (``(G, N_MODES)`` for ``step_members``): row of a mode
+  in the tables, -1 if not loaded;
 - ``phis`` ``(M, L + 1, 5, 7)``: ``Phi`` of the mode over ``h / 2**level``;
 - ``rates`` ``(M, 2, 7)``: the rows of ``[A | B | e]`` of the motor and platter
   accelerations (the excursion gate's Hermite slopes);
-- ``consts`` ``(N_CONSTS,)``: the coefficients, at the indices named below.
+- ``consts`` ``(N_CONSTS,)`` (``(G, N_CONSTS)``): the coefficients, at the indices named
+  below.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["N_CONSTS", "hermite_leaves", "key", "pack_consts", "step", "warm_up"]
+__all__ = [
+    "N_CONSTS", "hermite_leaves", "key", "pack_consts", "step", "step_members", "warm_up",
+]  # fmt: skip
 
 # Bridge modes (sim.plant's numbering).
 _B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6)
@@ -49,7 +53,8 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
 
 @numba.njit(cache=True)
 def key(i, w, tw, wp, duty, enable, kc):
-    """Mode key of the state (``ScalarPlant.key``; the rules of ``sim.plant.mode_keys``)."""
+    """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
+    power-flow modes)."""
     wbm, wbp, half, k, c, n = kc[_WBM], kc[_WBP], kc[_HALF], kc[_K], kc[_C], kc[_N]
     vs, r, ke, icl, vd2 = kc[_VS], kc[_R], kc[_KE], kc[_ICL], kc[_VD2]
     fm = 2 if w > wbm else (0 if w < -wbm else 1)
@@ -184,10 +189,10 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, h, kc):
 
 
 @numba.njit(cache=True)
-def step(i, p, w, tw, wp, d, en, start_key, levels, budget, check, slots, phis, rates, kc):
+def step(i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc):
     """One plant step of ``h_s`` with ``(d, en)`` held, from mode ``start_key`` (-1: work
-    it out), as ``ScalarPlant._advance`` recurses: halve a step whose end mode differs from
-    its start mode (or that leaves and re-enters it, if ``check``) up to ``levels`` times,
+    it out), as ``Plant.update`` describes: halve a step whose end mode differs from
+    its start mode (or that leaves and re-enters it) up to ``levels`` times,
     within ``budget`` halvings; take the first half in the start mode, the second in the
     mode where the first ended.
 
@@ -227,11 +232,12 @@ def step(i, p, w, tw, wp, d, en, start_key, levels, budget, check, slots, phis, 
         nwp = r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6]
         key_end = key(ni, nw, ntw, nwp, d, en, kc)
         accept = key_end == k
-        if accept and level < levels and budget > 0 and check:
+        if accept and level < levels and budget > 0:
             h = h_s / (1 << level)
             accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, rates[row], h, kc)
         if not accept and (level >= levels or budget <= 0):
-            # Located to h / 2**levels: accept (ScalarPlant._advance says why).
+            # Located to h / 2**levels: accept (a diode current stops at zero, a current that
+            # reached the bridge's limitation is held at I_CL).
             n_events += 1
             bridge = k // 54
             if (bridge == _B_DIODE_POS and ni < 0) or (bridge == _B_DIODE_NEG and ni > 0):
@@ -254,15 +260,53 @@ def step(i, p, w, tw, wp, d, en, start_key, levels, budget, check, slots, phis, 
     return i, p, w, tw, wp, key_end, n_events, -1
 
 
+@numba.njit(cache=True)
+def step_members(
+    x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
+    budget, out_x, out_keys,
+):  # fmt: skip
+    """``step`` for members ``start, start + 1, ...`` of ``x`` (``(N, 5)``) with inputs
+    ``duty`` / ``enable`` (``(N,)``), member j using parameter set ``group[j]``; new states
+    into ``out_x``, each member's mechanical end mode into ``out_keys``. ``keys_in``: the
+    mechanical modes of ``x`` if ``known`` (``x`` is the last ``out_x``). Returns ``(next,
+    events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
+    set ``group`` is missing and members from ``next`` on are still to do."""
+    events = 0
+    for j in range(start, x.shape[0]):
+        g = group[j]
+        kc = consts[g]
+        i = x[j, 0]
+        en = enable[j]
+        k0 = -1
+        if known and en and -kc[_ICL] < i < kc[_ICL]:
+            k0 = keys_in[j]
+        r = step(
+            i, x[j, 1], x[j, 2], x[j, 3], x[j, 4], duty[j], en, k0, levels, budget, slots[g],
+            phis, rates, kc,
+        )  # fmt: skip
+        if r[7] >= 0:
+            return j, events, g, r[7]
+        out_x[j, 0] = r[0]
+        out_x[j, 1] = r[1]
+        out_x[j, 2] = r[2]
+        out_x[j, 3] = r[3]
+        out_x[j, 4] = r[4]
+        out_keys[j] = r[5] % 54
+        events += r[6]
+    return x.shape[0], events, 0, -1
+
+
 def warm_up(event_levels: int = 20) -> None:
     """Load the compiled kernels (compile them, the first time on a machine) with the
-    argument types ``ScalarPlant`` passes, so that a caller can time this apart from a run.
+    argument types ``Plant`` passes, so that a caller can time this apart from a run.
     Numba's own start-up makes it ~0.3 s in a fresh process; later calls cost nothing."""
-    kc = np.ones(N_CONSTS)
-    key(0.0, 0.0, 0.0, 0.0, 0.0, True, kc)
+    kc = np.ones((1, N_CONSTS))
+    key(0.0, 0.0, 0.0, 0.0, 0.0, True, kc[0])
+    x = np.zeros((1, 5))
+    ints = np.zeros(1, dtype=np.int64)
     # Mode 0 is not in the tables: the kernel returns at once, asking for it.
-    step(
-        0.0, 0.0, 0.0, 0.0, 0.0, 0.0, True, 0, event_levels, 1, True,
-        np.full(1, -1, dtype=np.int64), np.empty((0, event_levels + 1, 5, 7)),
-        np.empty((0, 2, 7)), kc,
+    step_members(
+        x, np.zeros(1), np.ones(1, dtype=bool), ints, True, 0, ints,
+        np.full((1, 1), -1, dtype=np.int64), np.empty((0, event_levels + 1, 5, 7)),
+        np.empty((0, 2, 7)), kc, event_levels, 1, np.empty((1, 5)), ints,
     )  # fmt: skip

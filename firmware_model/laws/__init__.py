@@ -1,11 +1,8 @@
-"""The interchangeable implementations of the control law (one per file, same methods and
-attributes): ``ScalarLaw`` (floats), ``ScalarFixedLaw`` (Q-format on ints), ``ArrayLaw``
-(batch: float64 in the compiled loops of ``array_float.py``, or Q-format on numpy).
+"""The control law, written once for N members in each arithmetic: ``float64.py`` (float64)
+and ``fixed_q.py`` (saturating int32 Q16.16 / Q8.24, as on the FPU-less STM32F103), over the
+state layout of ``layout.py``; ``law.py`` holds the state and calls the steps.
 ``firmware_model/servo.py`` describes what they compute."""
 
-from firmware_model.laws.array import ArrayLaw
-from firmware_model.laws.common import GAIN_NAMES, LawBase
-from firmware_model.laws.scalar import ScalarLaw
-from firmware_model.laws.scalar_fixed import ScalarFixedLaw
+from firmware_model.laws.law import GAIN_NAMES, Law
 
-__all__ = ["ArrayLaw", "GAIN_NAMES", "LawBase", "ScalarFixedLaw", "ScalarLaw"]
+__all__ = ["GAIN_NAMES", "Law"]

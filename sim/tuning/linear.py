@@ -299,9 +299,9 @@ def _observer_uses_expected_current(bench: BenchConfig) -> bool:
     (as first committed) or the expected current of the period that just ended (reference
     plus the last sample's model error). Read off the law in use, so that the model follows
     the firmware; see the report of issue 6 for a public flag."""
-    from firmware_model.servo import ScalarLaw
+    from firmware_model.laws import layout
 
-    return hasattr(ScalarLaw(bench.firmware), "_ref_d_last")
+    return hasattr(layout, "S_REF_D_LAST")
 
 
 def _drop_position_mode(lt: LoopTransfer, ip: int, ipe: int) -> LoopTransfer:

@@ -1,7 +1,7 @@
 """Relay auto-tune of the velocity loop on the simulated bench (Astrom-Hagglund), as
 Marlin's ``M303`` and Klipper's ``PID_CALIBRATE`` do on a heater.
 
-The firmware's own estimator and current loop run (``firmware_model.servo.ScalarLaw``); the
+The firmware's own estimator and current loop run (``firmware_model.servo.Law``, one axis); the
 velocity PI is replaced by a relay: ``i_ref = bias + h`` while the estimated speed is below
 ``vel_dps`` and ``bias - h`` above it. The bias is re-centred every cycle to the mean current
 of the last cycle (Klipper's balancing of heating and cooling), which cancels the friction.
@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model.servo import ScalarLaw
+from firmware_model.servo import Law
 from sim.config import BenchConfig
 from sim.loop import Simulation
 from sim.tuning.gains import GainSet
@@ -33,7 +33,9 @@ class _RelayBoard:
     current loop, a relay on the velocity error. Single axis, no UART traffic."""
 
     def __init__(self, bench: BenchConfig, vel_dps: float, amp_a: float) -> None:
-        self.law = ScalarLaw(bench.firmware)
+        self.law = Law(bench.firmware)
+        self._raw = np.zeros(1, dtype=np.int64)
+        self._on = np.ones(1, dtype=bool)
         self.vel_dps = vel_dps
         self.amp_a = amp_a
         self.bias_a = 0.0
@@ -44,11 +46,12 @@ class _RelayBoard:
         self.tick = 0
 
     def servo_tick(self, encoder_counts: Any, rx_bytes: bytes, tx_free: int) -> bytes:
+        self._raw[0] = encoder_counts
         if not self._booted:
-            self.law.reset(int(encoder_counts))
+            self.law.reset(self._raw)
             self._booted = True
-        self.law.estimate(int(encoder_counts))
-        high = self.law.vel_dps < self.vel_dps
+        self.law.estimate(self._raw)
+        high = self.law.vel_dps[0] < self.vel_dps
         if high and not self._high:
             # A full cycle ended: re-centre the relay on its mean current.
             self.switch_ticks.append(self.tick)
@@ -63,7 +66,8 @@ class _RelayBoard:
         return b""
 
     def current_tick(self, adc_counts: Any) -> tuple[float, bool]:
-        return self.law.current(int(adc_counts), True), True
+        self._raw[0] = adc_counts
+        return float(self.law.current(self._raw, self._on)[0]), True
 
     def signals(self) -> dict[str, Any]:
         law = self.law
@@ -71,12 +75,12 @@ class _RelayBoard:
             "sp_pos_deg": 0.0,
             "sp_vel_dps": self.vel_dps,
             "sp_acc_dps2": 0.0,
-            "pos_deg": law.pos_deg,
-            "vel_dps": law.vel_dps,
-            "vel_raw_dps": law.vel_raw_dps,
-            "current_meas_a": law.current_meas_a,
-            "current_ref_a": law.current_ref_a,
-            "duty": law.duty,
+            "pos_deg": float(law.pos_deg[0]),
+            "vel_dps": float(law.vel_dps[0]),
+            "vel_raw_dps": float(law.vel_raw_dps[0]),
+            "current_meas_a": float(law.current_meas_a[0]),
+            "current_ref_a": float(law.current_ref_a[0]),
+            "duty": float(law.duty[0]),
             "state": 2,
             "fault": 0,
         }

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from firmware_model import fixedpoint as fx
-from firmware_model.laws import ArrayLaw, ScalarFixedLaw, ScalarLaw
+from firmware_model.laws import Law
+from firmware_model.laws.layout import C_PIPE, C_STEPS, K_PIPE_I, S_I_I, S_I_V, S_IMEAS
 from firmware_model.params import (
     CurrentLoopGains,
     FirmwareParams,
@@ -17,6 +18,91 @@ from firmware_model.params import (
     VelocityLoopGains,
 )
 from firmware_model.units import AXIS_DEG_PER_COUNT
+
+
+class ScalarLaw:
+    """One axis of ``Law`` with scalar access, and setters for the state the tests poke."""
+
+    arithmetic = "float"
+
+    def __init__(self, params: FirmwareParams) -> None:
+        if self.arithmetic != params.servo.arithmetic:
+            params = FirmwareParams(
+                servo=ServoParams(arithmetic=self.arithmetic), current=params.current
+            )
+        self.law = Law(params)
+        self.fixed = self.law.fixed
+        self.delay = self.law.delay
+
+    def _q(self, value: float):
+        return fx.to_sig(value) if self.fixed else value
+
+    def _f(self, value):
+        return float(fx.from_sig(value)) if self.fixed else float(value)
+
+    def reset(self, raw: int) -> None:
+        self.law.reset(np.array([raw]))
+
+    def estimate(self, raw: int) -> None:
+        self.law.estimate(np.array([raw], dtype=np.int64))
+
+    def servo(self, *args: float) -> None:
+        self.law.servo(*args)
+
+    def current(self, adc: int, enabled: bool) -> float:
+        adc_a = np.array([adc], dtype=np.int64)
+        return float(self.law.current(adc_a, np.array([enabled]))[0])
+
+    def resync(self) -> None:
+        self.law.resync()
+
+    def next_duty(self) -> float:
+        """The duty computed by the last current step (out of the compute delay next)."""
+        row = C_PIPE + (int(self.law.K[K_PIPE_I]) - 1) % self.delay
+        return self.law.C[row, 0] / self.law.arr
+
+    pos_deg = property(lambda self: float(self.law.pos_deg[0]))
+    vel_dps = property(lambda self: float(self.law.vel_dps[0]))
+    vel_raw_dps = property(lambda self: float(self.law.vel_raw_dps[0]))
+    count = property(lambda self: int(self.law.count[0]))
+    innovation_counts = property(lambda self: int(self.law.innovation_counts[0]))
+    i_v = property(lambda self: self._f(self.law.S[S_I_V, 0]))
+
+    @property
+    def i_i(self) -> float:
+        return self._f(self.law.S[S_I_I, 0])
+
+    @i_i.setter
+    def i_i(self, v: float) -> None:
+        self.law.S[S_I_I, 0] = self._q(v)
+
+    @property
+    def duty(self) -> float:
+        return float(self.law.duty[0])
+
+    @duty.setter
+    def duty(self, v: float) -> None:  # the duty being applied (its sign: the IS pin's)
+        self.law.C[C_STEPS, 0] = round(v * self.law.arr)
+
+    @property
+    def current_meas_a(self) -> float:
+        return float(self.law.current_meas_a[0])
+
+    @current_meas_a.setter
+    def current_meas_a(self, v: float) -> None:
+        self.law.S[S_IMEAS, 0] = self._q(v)
+
+    @property
+    def current_ref_a(self) -> float:
+        return float(self.law.current_ref_a[0])
+
+    @current_ref_a.setter
+    def current_ref_a(self, v: float) -> None:
+        self.law.current_ref_a = v
+
+
+class ScalarFixedLaw(ScalarLaw):
+    arithmetic = "fixed"
 
 
 def _counts(true_counts: float) -> int:
@@ -72,7 +158,8 @@ def test_observer_uses_the_current_to_remove_acceleration_lag():
     params = FirmwareParams()
     c = params.estimator.accel_per_amp_dps2  # axis deg/s^2 per A
     with_model, without = ScalarLaw(params), ScalarLaw(params)
-    without.counts_tick2_per_a = 0.0
+    without.law.counts_tick2_per_a = 0.0
+    without.law._derive()
     for law in (with_model, without):
         law.reset(0)
     acc_counts = 2.0 * c * 0.002**2 / AXIS_DEG_PER_COUNT  # 2 A worth, counts per tick^2
@@ -135,11 +222,11 @@ def test_current_integrator_does_not_wind_up_when_the_sense_is_blind():
         law.current(0, True)
         if k >= 2:  # the reference of the duty that produced this sample
             assert law.current_meas_a == -3.0
-    assert law._i_i == 0.0
+    assert law.i_i == 0.0
     # Once the sense can see the current, the integrator works again.
     law.duty = -0.2
     law.current(100, True)
-    assert law._i_i != 0.0
+    assert law.i_i != 0.0
 
 
 def _cruise(law, counts_per_tick: float, ticks: int = 300) -> None:
@@ -163,21 +250,21 @@ def test_regenerative_clamp_bounds_the_unseen_current_and_back_calculates(direct
     _cruise(law, direction * 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
     emf = cur.back_emf_v_per_dps * law.vel_dps
     assert abs(emf) > cur.resistance_ohm * 5.0  # -5 A needs a duty of the old sign
-    law._i_i = -3.0 * direction
+    law.i_i = -3.0 * direction
     law.duty = 0.5 * direction  # still driving forwards: the sense is blind
     law.servo(law.pos_deg - 100.0 * direction, 0.0, 0.0, 1000.0, 5.0)  # i_ref = -5 A
     assert law.current_ref_a == -5.0 * direction
     law.current(0, True)
-    computed = law._pipe[(law._pipe_i - 1) % law.delay]  # the duty of the next period
+    computed = law.next_duty()  # the duty of the next period
     predicted_a = (computed * cur.supply_v - emf) / cur.resistance_ohm
     assert predicted_a * direction == pytest.approx(-5.0, abs=cur.supply_v / 3600 / 1.2)
     # Back-calculation: the integrator now holds what makes the unclamped output the
     # clamp, so the loop leaves the clamp without a jump.
-    assert law._i_i == pytest.approx(0.0, abs=1e-9)
+    assert law.i_i == pytest.approx(0.0, abs=1e-9)
     # Without a stale integrator the clamp does not act: the voltage is R i_ref + emf.
-    law._i_i = 0.0
+    law.i_i = 0.0
     law.current(0, True)
-    computed = law._pipe[(law._pipe_i - 1) % law.delay]
+    computed = law.next_duty()
     assert computed == round((emf - 5.0 * direction * 1.2) / 24.0 * 3600) / 3600
 
 
@@ -188,11 +275,11 @@ def test_regenerative_clamp_leaves_a_current_in_the_duty_direction_to_the_loop()
     law = ScalarLaw(params)
     law.reset(0)
     _cruise(law, 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
-    law._i_i = -20.0
+    law.i_i = -20.0
     law.duty = -0.1
     law.servo(law.pos_deg - 100.0, 0.0, 0.0, 1000.0, 5.0)
     law.current(0, True)
-    computed = law._pipe[(law._pipe_i - 1) % law.delay]
+    computed = law.next_duty()
     emf = params.current.back_emf_v_per_dps * law.vel_dps
     assert computed == round((emf - 6.0 - 20.0) / 24.0 * 3600) / 3600 < 0.0
 
@@ -204,9 +291,9 @@ def test_integrators_stay_inside_the_clamps():
     for _ in range(2000):
         law.servo(1e4, 0.0, 0.0, 1000.0, 5.0)  # huge error: both clamps saturate
         law.current(0, True)
-        assert abs(law._i_v) <= 5.0
+        assert abs(law.i_v) <= 5.0
         assert abs(law.current_ref_a) <= 5.0
-        assert abs(law._i_i) <= 24.0
+        assert abs(law.i_i) <= 24.0
 
 
 def test_disabled_bridge_gives_zero_duty_and_resets():
@@ -215,105 +302,58 @@ def test_disabled_bridge_gives_zero_duty_and_resets():
     law.estimate(0)
     _drive(law, 10, adc=50)
     assert law.current(50, False) == 0.0
-    assert law._i_i == 0.0 and law._i_v == 0.0 and law.duty == 0.0
+    assert law.i_i == 0.0 and law.i_v == 0.0 and law.duty == 0.0
 
 
 @pytest.mark.parametrize("delay", [0, 1, 2])
-def test_scalar_and_float_batch_laws_agree_bit_for_bit(delay, make_bench):
-    params = FirmwareParams(servo=ServoParams(compute_delay_ticks=delay))
-    rng = np.random.default_rng(7)
-    scalar = ScalarLaw(params)
-    batch = ArrayLaw(params, 1, fixed=False)
-    scalar.reset(100)
-    batch.reset([100])
-    x = 100.0
-    for k in range(400):
-        x += 30.0 * math.sin(k / 40.0) + rng.normal()
-        raw = _counts(x)
-        adc = int(rng.integers(0, 800)) if k % 5 else 0
-        sp = (0.5 * math.sin(k / 50.0), 10.0 * math.cos(k / 50.0), -0.2 * math.sin(k / 50.0))
-        enabled = k % 89 != 0
-        scalar.estimate(raw)
-        batch.estimate(np.array([raw]))
-        scalar.servo(*sp, 990.0, 5.0)
-        batch.servo(*sp, 990.0, 5.0)
-        d1 = scalar.current(adc, enabled)
-        d2 = batch.current(np.array([adc]), np.array([enabled]))
-        assert d1 == d2[0]
-        assert scalar.vel_dps == batch.vel_dps[0]
-        assert scalar.current_ref_a == batch.current_ref_a[0]
-        assert scalar.current_meas_a == batch.current_meas_a[0]
-
-
-def test_scalar_and_batch_fixed_point_laws_agree_bit_for_bit():
-    params = FirmwareParams(servo=ServoParams(arithmetic="fixed"))
-    rng = np.random.default_rng(11)
-    scalar = ScalarFixedLaw(params)
-    batch = ArrayLaw(params, 1, fixed=True)
-    scalar.reset(100)
-    batch.reset([100])
-    x = 100.0
-    for k in range(400):
-        x += 30.0 * math.sin(k / 40.0) + rng.normal()
-        raw = _counts(x)
-        adc = int(rng.integers(0, 800)) if k % 7 else 0
-        sp = (0.5 * math.sin(k / 50.0), 10.0 * math.cos(k / 50.0), -0.2 * math.sin(k / 50.0))
-        enabled = k % 97 != 0
-        scalar.estimate(raw)
-        batch.estimate(np.array([raw]))
-        scalar.servo(*sp, 990.0, 5.0)
-        batch.servo(*sp, 990.0, 5.0)
-        d1 = scalar.current(adc, enabled)
-        d2 = batch.current(np.array([adc]), np.array([enabled]))
-        assert d1 == d2[0]
-        assert scalar.count == batch.count[0]
-        assert scalar.vel_dps == batch.vel_dps[0]
-        assert scalar.current_ref_a == batch.current_ref_a[0]
-        assert scalar.current_meas_a == batch.current_meas_a[0]
-
-
 @pytest.mark.parametrize("arithmetic", ["float", "fixed"])
-def test_scalar_and_batch_laws_agree_bit_for_bit_through_the_regenerative_clamp(arithmetic):
-    # Fast motion both ways (up to ~550 deg/s), references at the limit against it, a blind
-    # sense most of the time and a stale integrator now and then: the clamp acts in both
-    # directions, and the scalar and batch laws still compute the same bits.
-    params = FirmwareParams(servo=ServoParams(arithmetic=arithmetic))
-    fixed = arithmetic == "fixed"
-    scalar = ScalarFixedLaw(params) if fixed else ScalarLaw(params)
-    batch = ArrayLaw(params, 1, fixed=fixed)
-    scalar.reset(0)
-    batch.reset([0])
+def test_each_member_of_a_batch_computes_what_one_axis_computes(arithmetic, delay):
+    # Three members with their own gains, readings, ADC samples and enables, through fast
+    # motion both ways, blind senses and stale integrators (the regenerative clamp acts):
+    # member j of the batch gives the bits of a one-axis law with member j's gains.
+    kp = [0.04, 0.05, 0.07]
+    params = FirmwareParams(
+        servo=ServoParams(arithmetic=arithmetic, compute_delay_ticks=delay),
+        velocity=VelocityLoopGains(kp_a_per_dps=np.array(kp)),
+    )
+    batch = Law(params, 3)
+    singles = [
+        Law(FirmwareParams(servo=params.servo, velocity=VelocityLoopGains(kp_a_per_dps=k)))
+        for k in kp
+    ]
     rng = np.random.default_rng(5)
-    x = 0.0
-    clamped = {1.0: 0, -1.0: 0}
-    for k in range(800):
-        speed = 4000.0 * math.sin(2 * math.pi * k / 400)
-        x += speed
-        raw = _counts(x)
-        scalar.estimate(raw)
-        batch.estimate(np.array([raw]))
-        sign = 1.0 if speed >= 0 else -1.0
-        sp = (scalar.pos_deg - 100.0 * sign, 0.0, 0.0)
-        scalar.servo(*sp, 990.0, 5.0)
-        batch.servo(*sp, 990.0, 5.0)
+    raw0 = np.array([100, 16380, 7])
+    batch.reset(raw0)
+    for j, law in enumerate(singles):
+        law.reset(np.array([batch.count[j] % 16384]))
+        law.C[0] = batch.count[j]  # the same multi-turn start (unwrapped around member 0)
+    x = batch.count.astype(float)
+    for k in range(600):
+        speed = 4000.0 * math.sin(2 * math.pi * k / 300) + rng.normal(size=3)
+        x = x + speed
+        raw = np.floor(x).astype(np.int64) % 16384
+        adc = np.where(rng.random(3) < 0.3, rng.integers(0, 800, 3), 0)
+        enabled = rng.random(3) > 0.02
+        sp = (batch.pos_deg[0] - 100.0 * np.sign(speed[0]), 10.0 * math.cos(k / 50.0), -0.2)
         stale = k % 10 == 0 and k > 100
+        batch.estimate(raw)
+        batch.servo(*sp, 990.0, 5.0)
         if stale:
-            v = -3.0 * sign
-            scalar._i_i = fx.to_sig(v).item() if fixed else v
-            batch._i_i = fx.to_sig(np.array([v])) if fixed else np.array([v])
-        adc = int(rng.integers(0, 800)) if k % 7 == 0 else 0
-        d1 = scalar.current(adc, True)
-        d2 = batch.current(np.array([adc]), np.array([True]))
-        assert d1 == d2[0]
-        assert scalar._i_i == batch._i_i[0]
-        assert scalar.current_meas_a == batch.current_meas_a[0]
-        if stale and abs(scalar._i_i) < (1 << 10 if fixed else 0.02):  # back-calculated
-            clamped[sign] += 1
-    assert min(clamped.values()) >= 5
+            batch.S[S_I_I] = fx.to_sig(np.full(3, -3.0)) if arithmetic == "fixed" else -3.0
+        batch.current(adc, enabled)
+        for j, law in enumerate(singles):
+            law.estimate(raw[j : j + 1])
+            law.servo(*sp, 990.0, 5.0)
+            if stale:
+                law.S[S_I_I] = fx.to_sig(np.full(1, -3.0)) if arithmetic == "fixed" else -3.0
+            law.current(adc[j : j + 1], enabled[j : j + 1])
+            np.testing.assert_array_equal(law.P[:, 0], batch.P[:, j])
+            np.testing.assert_array_equal(law.S[:, 0], batch.S[:, j])
+            np.testing.assert_array_equal(law.C[:, 0], batch.C[:, j])
 
 
 def test_batch_boot_readings_unwrap_around_member_0():
-    law = ArrayLaw(FirmwareParams(), 4)
+    law = Law(FirmwareParams(), 4)
     law.reset(np.array([3, 16383, 8, 16380]))
     np.testing.assert_array_equal(law.count, [3, -1, 8, -4])
 
@@ -340,8 +380,11 @@ def test_resync_restarts_the_observer_on_the_reading(law_class):
         assert abs(law.innovation_counts) <= 2
 
 
-@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
-def test_single_axis_laws_refuse_array_gains(law_class):
-    params = FirmwareParams(velocity=VelocityLoopGains(kp_a_per_dps=[0.05, 0.06]))
-    with pytest.raises(ValueError, match="array gains need batch=N"):
-        law_class(params)
+@pytest.mark.parametrize("arithmetic", ["float", "fixed"])
+def test_gain_arrays_must_have_one_value_per_member(arithmetic):
+    params = FirmwareParams(
+        servo=ServoParams(arithmetic=arithmetic),
+        velocity=VelocityLoopGains(kp_a_per_dps=[0.05, 0.06]),
+    )
+    with pytest.raises(ValueError, match=r"kp_v: gain array shape \(2,\) != \(1,\)"):
+        Law(params)

@@ -1,4 +1,4 @@
-"""AS5048 model: quantisation, wrap-around, latency, seeded noise; batch agrees."""
+"""AS5048 model: quantisation, wrap-around, latency, seeded noise, parameters per member."""
 
 from __future__ import annotations
 
@@ -18,8 +18,18 @@ def _enc(**kw) -> Encoder:
     return Encoder(EncoderParams(**kw), np.random.default_rng(0))
 
 
+class _One:
+    """Reads one state (a list of 5) through ``Encoder.read`` as a batch of one."""
+
+    def __init__(self, enc: Encoder) -> None:
+        self.enc = enc
+
+    def read(self, x) -> int:
+        return int(self.enc.read(np.array([x], dtype=float))[0])
+
+
 def test_quantisation_truncates_to_counts():
-    enc = _enc()
+    enc = _One(_enc())
     assert enc.read([0, 0.0, 0, 0, 0]) == 0
     assert enc.read([0, 0.999 * COUNT_RAD, 0, 0, 0]) == 0
     assert enc.read([0, 1.001 * COUNT_RAD, 0, 0, 0]) == 1
@@ -27,7 +37,7 @@ def test_quantisation_truncates_to_counts():
 
 
 def test_wraps_around_both_ways():
-    enc = _enc()
+    enc = _One(_enc())
     assert enc.read([0, 2 * math.pi + 3.5 * COUNT_RAD, 0, 0, 0]) == 3
     assert enc.read([0, -0.5 * COUNT_RAD, 0, 0, 0]) == 16383
     assert enc.read([0, -5 * 2 * math.pi + 10.5 * COUNT_RAD, 0, 0, 0]) == 10
@@ -37,7 +47,7 @@ def test_wraps_around_both_ways():
 
 
 def test_latency_reads_the_angle_of_tau_ago():
-    enc = _enc(latency_s=1e-4)
+    enc = _One(_enc(latency_s=1e-4))
     w = 1000.0  # rad/s
     pos = 5.0
     expected = math.floor((pos - w * 1e-4) / COUNT_RAD) % 16384
@@ -48,8 +58,9 @@ def test_latency_reads_the_angle_of_tau_ago():
 def test_noise_is_seeded_and_has_the_configured_rms():
     p = EncoderParams(latency_s=0.0, noise_rms_lsb=2.0)
     x = [0, 1000.5 * COUNT_RAD, 0, 0, 0]
-    a = [Encoder(p, np.random.default_rng(7)).read(x) for _ in range(1)]
-    enc1, enc2 = Encoder(p, np.random.default_rng(7)), Encoder(p, np.random.default_rng(7))
+    a = [_One(Encoder(p, np.random.default_rng(7))).read(x) for _ in range(1)]
+    enc1 = _One(Encoder(p, np.random.default_rng(7)))
+    enc2 = _One(Encoder(p, np.random.default_rng(7)))
     r1 = np.array([enc1.read(x) for _ in range(4000)])
     r2 = np.array([enc2.read(x) for _ in range(4000)])
     np.testing.assert_array_equal(r1, r2)
@@ -58,18 +69,18 @@ def test_noise_is_seeded_and_has_the_configured_rms():
     assert np.mean(r1) == pytest.approx(1000.0, abs=0.2)
 
 
-def test_batch_read_matches_scalar_reads():
+def test_batch_read_gives_each_member_its_own_reading():
     enc = _enc(latency_s=1e-4)
     rng = np.random.default_rng(3)
     x = np.zeros((500, 5))
     x[:, 1] = rng.uniform(-100, 100, 500)
     x[:, 2] = rng.uniform(-1500, 1500, 500)
-    counts = enc.read_batch(x)
+    counts = enc.read(x)
     assert counts.dtype == np.int64
-    assert [enc.read(list(row)) for row in x] == counts.tolist()
+    assert [_One(enc).read(list(row)) for row in x] == counts.tolist()
 
 
-def test_batch_read_with_parameters_per_member_matches_each_members_reads():
+def test_batch_read_with_parameters_per_member_matches_the_formula():
     rng = np.random.default_rng(4)
     n = 300
     latency, offset = rng.uniform(0.0, 3e-4, n), rng.uniform(0.0, 40.0, n)
@@ -81,10 +92,10 @@ def test_batch_read_with_parameters_per_member_matches_each_members_reads():
     x = np.zeros((n, 5))
     x[:, 1] = rng.uniform(-100, 100, n)
     x[:, 2] = rng.uniform(-1500, 1500, n)
-    counts = batch.read_batch(x)
-    # The same draws as the batch: one standard normal per member from the seeded generator.
-    draws = np.random.default_rng(8).standard_normal(n)
-    for j in range(n):
-        one = _enc(latency_s=latency[j], offset_counts=offset[j], noise_rms_lsb=noise[j])
-        one._block = [float(noise[j] * draws[j])]  # the next draw of its block
-        assert one.read(list(x[j])) == counts[j]
+    first, second = batch.read(x), batch.read(x)
+    # The draws: blocks of 4096 ticks x n standard normals from the seeded generator, row
+    # k for tick k (the stream of one draw of n per tick).
+    draws = np.random.default_rng(8).standard_normal((2, n))
+    for k, counts in enumerate((first, second)):
+        c = (x[:, 1] - x[:, 2] * latency) * (16384 / (2 * math.pi)) + offset + noise * draws[k]
+        np.testing.assert_array_equal(counts, np.floor(c).astype(np.int64) % 16384)

@@ -18,26 +18,37 @@ from sim.plant import (
     B_LIMIT_POS,
     B_OPEN,
     N_MODES,
-    BatchPlant,
     Coefficients,
-    ScalarPlant,
+    Plant,
     affine,
     augmented,
     derivative,
     expm_small,
-    mode_keys,
     zoh_ladder,
 )
 
 DT_S = 0.002
 
 
-def _run(plant: ScalarPlant, x0: list[float], duties: list[float], enable: bool = True):
+class ScalarPlant(Plant):
+    """A ``Plant`` of one member."""
+
+    def __init__(self, params: PlantParams, h_s: float, event_levels: int = 20) -> None:
+        super().__init__(params, 1, h_s, event_levels)
+
+    def update(self, t_s, x, u):
+        """``x`` (5,) or (1, 5) -> (1, 5) (``_run`` chains the arrays as a run does)."""
+        if not (isinstance(x, np.ndarray) and x.shape == (1, 5)):
+            x = np.asarray(x, dtype=float).reshape(1, 5)
+        return super().update(t_s, x, u)
+
+
+def _run(plant: Plant, x0: list[float], duties: list[float], enable: bool = True):
     xs = []
-    x = list(x0)
+    x = np.array([x0], dtype=float)
     for k, d in enumerate(duties):
         x = plant.update(k * DT_S, x, (d, enable))
-        xs.append(x)
+        xs.append(x[0])
     return np.array(xs)
 
 
@@ -139,7 +150,7 @@ def test_belt_resonance_in_time_domain():
     tw = []
     for _ in range(4000):
         x = plant.update(0.0, x, (0.0, False))
-        tw.append(x[3])
+        tw.append(x[0, 3])
     tw = np.array(tw)
     crossings = np.nonzero(np.diff(np.sign(tw)) != 0)[0]
     period_s = 2 * np.mean(np.diff(crossings)) * DT_S / 20
@@ -172,32 +183,21 @@ def test_disabled_bridge_current_decays_to_zero_and_stays():
     assert xs[-1][2] < x[2]  # coasting down
 
 
-def test_batch_matches_scalar_and_per_member_params():
+def test_batch_members_with_their_own_parameters_step_as_one_axis_each():
     base = PlantParams()
     r = np.array([1.0, 1.2, 1.5, 2.0])
     params = dataclasses.replace(base, motor=dataclasses.replace(base.motor, r_ohm=r))
-    batch = BatchPlant(params, 4, DT_S)
+    batch = Plant(params, 4, DT_S)
     x = np.zeros((4, 5))
     duty = np.array([0.5, 0.5, -0.3, 0.9])
     for k in range(300):
-        x = batch.update(k * DT_S, x, (duty, True))
+        sign = 1.0 if (k // 100) % 2 == 0 else -1.0  # reversals: bands, gap, power flow
+        x = batch.update(k * DT_S, x, (sign * duty, True))
+    assert batch.n_events > 4
     for j in range(4):
-        xs = _run(ScalarPlant(params.member(j), DT_S), [0.0] * 5, [duty[j]] * 300)
-        np.testing.assert_allclose(x[j], xs[-1], rtol=1e-12, atol=1e-12)
-
-
-def test_vectorised_and_scalar_mode_keys_agree():
-    params = PlantParams()
-    plant = ScalarPlant(params, DT_S)
-    rng = np.random.default_rng(1)
-    x = rng.normal(size=(2000, 5)) * np.array([30.0, 1.0, 0.2, 1e-3, 3e-3])
-    duty = rng.uniform(-1, 1, 2000)
-    enable = rng.uniform(size=2000) > 0.3
-    x[::7, 0] = 0.0
-    keys = mode_keys(x, duty, enable, plant.co)
-    for j in range(2000):
-        assert plant.key(x[j].tolist(), float(duty[j]), bool(enable[j])) == keys[j]
-    assert len(set(keys.tolist())) > 20
+        signs = [1.0 if (k // 100) % 2 == 0 else -1.0 for k in range(300)]
+        xs = _run(ScalarPlant(params.member(j), DT_S), [0.0] * 5, [s * duty[j] for s in signs])
+        np.testing.assert_array_equal(x[j], xs[-1])
 
 
 def test_power_flow_direction_changes_reflected_torque():
@@ -234,24 +234,3 @@ def test_hidden_excursion_into_a_band_is_detected():
     assert not _hermite_leaves(-0.3, -0.3, 0.4, -0.4, 0.1)  # peaks at -0.2: stays out
     assert not _hermite_leaves(-30.0, -29.0, 1.0, 1.0, 0.1)  # far away: gate
     assert _hermite_leaves(0.5, 0.5, -4.0, 4.0, 0.1)  # dips through the band to the other side
-
-
-def test_shared_parameter_batch_locates_switches_like_the_scalar_plant():
-    # 12 members switch together (more than the scalar hand-off threshold of 8): the
-    # vectorised halving runs; it must give what 12 ScalarPlants give.
-    params = PlantParams()
-    duties = np.linspace(-0.9, 0.9, 12)
-    n = duties.size
-    batch = BatchPlant(params, n, DT_S)
-    x = np.zeros((n, 5))
-    scalars = [ScalarPlant(params, DT_S) for _ in range(n)]
-    for p in scalars:
-        p.check_excursions = False  # batch semantics
-    xs = [[0.0] * 5 for _ in range(n)]
-    for k in range(400):
-        sign = 1.0 if (k // 100) % 2 == 0 else -1.0  # reversals: bands, gap, power flow
-        x = batch.update(k * DT_S, x, (sign * duties, True))
-        for j in range(n):
-            xs[j] = scalars[j].update(k * DT_S, xs[j], (sign * float(duties[j]), True))
-    assert sum(p.n_events for p in scalars) > 20
-    np.testing.assert_allclose(x, np.array(xs), rtol=1e-9, atol=1e-9)

@@ -1,8 +1,8 @@
 """The compiled plant step (sim.plant_kernel) against its recursive definition.
 
 ``plant_kernel.step`` walks the dyadic sub-steps with an explicit stack; the recursion below
-is how ``ScalarPlant._advance`` was written in Python before it was compiled (the same
-rules, written as the docstring of ``ScalarPlant.update`` states them). Both must give the
+is how the step was written in Python before it was compiled (the same rules, written as
+the docstring of ``Plant.update`` states them). Both must give the
 same floats, bit for bit, including the halving budget, the located switches and their
 projections (diode blocking, I_CL).
 """
@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 
 from sim import plant_kernel
 from sim.params import PlantParams
-from sim.plant import B_DIODE_NEG, B_DIODE_POS, B_LIMIT_NEG, B_LIMIT_POS, N_X, ScalarPlant
+from sim.plant import B_DIODE_NEG, B_DIODE_POS, B_LIMIT_NEG, B_LIMIT_POS, N_X, Plant
 
 DT_S = 0.002
 
@@ -28,7 +28,7 @@ DT_S = 0.002
 class _Recursion:
     """The Python recursion, on a plant's tables: (state, n_events, end key)."""
 
-    def __init__(self, plant: ScalarPlant) -> None:
+    def __init__(self, plant: Plant) -> None:
         self.plant = plant
         self.n_events = 0
         self.end_key = -1
@@ -55,10 +55,7 @@ class _Recursion:
         self.end_key = key_end
         h = p.h_s / (1 << level)
         if key_end == key and (
-            level >= p.event_levels
-            or self.splits <= 0
-            or not p.check_excursions
-            or not self._excursion(x, xn, key, h)
+            level >= p.event_levels or self.splits <= 0 or not self._excursion(x, xn, key, h)
         ):
             return xn
         if level >= p.event_levels or self.splits <= 0:
@@ -78,17 +75,19 @@ class _Recursion:
 
     def _excursion(self, x, xn, key, h):
         p = self.plant
-        if p._slots[key] < 0:
-            p._load(key)
-        row = p._slots[key]
+        if p._slots[0, key] < 0:
+            p._load(0, key)
+        row = p._slots[0, key]
         i0, _, w0, t0, p0 = x
         i1, _, w1, t1, p1 = xn
-        return plant_kernel._excursion(i0, w0, t0, p0, i1, w1, t1, p1, p._rates[row], h, p._consts)
+        return plant_kernel._excursion(
+            i0, w0, t0, p0, i1, w1, t1, p1, p._rates[row], h, p._consts[0]
+        )
 
 
 def _states(draw_scale: float, rng: np.random.Generator, n: int) -> np.ndarray:
     """States near the model's boundaries: friction bands, backlash gap, I_CL."""
-    co = ScalarPlant(PlantParams(), DT_S).co
+    co = Plant(PlantParams(), 1, DT_S).co
     x = np.zeros((n, N_X))
     x[:, 0] = rng.choice([-1.0, 1.0], n) * rng.uniform(0, 1.1 * co.icl, n) * draw_scale
     x[:, 1] = rng.uniform(-100, 100, n)
@@ -98,36 +97,39 @@ def _states(draw_scale: float, rng: np.random.Generator, n: int) -> np.ndarray:
     return x
 
 
+def _one(plant: Plant, x: list[float], d: float, en: bool) -> list[float]:
+    """One member's step through ``Plant.update`` (a batch of one)."""
+    return plant.update(0.0, np.array([x]), (d, en))[0].tolist()
+
+
 @pytest.mark.parametrize("levels", [0, 3, 20])
-@pytest.mark.parametrize("check", [True, False])
-def test_compiled_step_is_the_recursion_bit_for_bit(levels, check):
-    rng = np.random.default_rng(levels * 2 + check)
-    plant = ScalarPlant(PlantParams(), DT_S, event_levels=levels)
-    plant.check_excursions = check
+def test_compiled_step_is_the_recursion_bit_for_bit(levels):
+    rng = np.random.default_rng(levels * 2)
+    plant = Plant(PlantParams(), 1, DT_S, event_levels=levels)
     oracle = _Recursion(plant)
     events = 0
     for x in _states(1.0, rng, 400):
         d = float(rng.choice([rng.uniform(-1, 1), 0.0, 1.0, -1.0]))
         en = bool(rng.random() < 0.8)
         before = plant.n_events
-        got = plant.update(0.0, x.tolist(), (d, en))
+        got = _one(plant, x.tolist(), d, en)
         oracle.n_events = 0
         want = oracle.step(x.tolist(), d, en)
         assert list(got) == want, (x.tolist(), d, en)
         assert plant.n_events - before == oracle.n_events
-        assert plant._last_mech == oracle.end_key % 54
+        assert plant._last_mech[0] == oracle.end_key % 54
         events += oracle.n_events
     if levels:
         assert events > 10  # the located-switch branch ran
 
 
 def test_a_tiny_budget_is_spent_as_the_recursion_spends_it():
-    plant = ScalarPlant(PlantParams(), DT_S, event_levels=20)
+    plant = Plant(PlantParams(), 1, DT_S, event_levels=20)
     plant.split_budget = 3
     oracle = _Recursion(plant)
     rng = np.random.default_rng(7)
     for x in _states(1.0, rng, 200):
-        got = plant.update(0.0, x.tolist(), (0.3, True))
+        got = _one(plant, x.tolist(), 0.3, True)
         assert list(got) == oracle.step(x.tolist(), 0.3, True)
 
 
@@ -139,23 +141,23 @@ def test_a_tiny_budget_is_spent_as_the_recursion_spends_it():
 def test_a_fresh_plant_loads_modes_as_it_meets_them(duties, enable):
     # The kernel reports a mode it has no matrices for; update() loads it and steps again.
     # A plant that starts empty must give what a plant that has every mode loaded gives.
-    warm = ScalarPlant(PlantParams(), DT_S, event_levels=6)
-    for key in range(len(warm._slots)):
-        warm._load(key)
-    cold = ScalarPlant(PlantParams(), DT_S, event_levels=6)
-    xw = xc = [2.0, 0.0, 30.0, 0.0, 0.0]
+    warm = Plant(PlantParams(), 1, DT_S, event_levels=6)
+    for key in range(warm._slots.shape[1]):
+        warm._load(0, key)
+    cold = Plant(PlantParams(), 1, DT_S, event_levels=6)
+    xw = xc = np.array([[2.0, 0.0, 30.0, 0.0, 0.0]])
     for d in duties:
         xw = warm.update(0.0, xw, (d, enable))
         xc = cold.update(0.0, xc, (d, enable))
-        assert xw == xc
+        np.testing.assert_array_equal(xw, xc)
     assert 0 < cold._n_loaded <= len(duties) * (2 * 6 + 2)
 
 
 def test_consts_follow_the_coefficients():
-    plant = ScalarPlant(PlantParams(), DT_S)
+    plant = Plant(PlantParams(), 1, DT_S)
     co = dataclasses.asdict(plant.co)
-    kc = plant._consts
-    assert kc.shape == (plant_kernel.N_CONSTS,)
+    kc = plant._consts[0]
+    assert plant._consts.shape == (1, plant_kernel.N_CONSTS)
     assert kc[plant_kernel._ICL] == co["icl"] and kc[plant_kernel._INV_N] == co["inv_n"]
     assert kc[plant_kernel._JP] == co["jp"] and kc[plant_kernel._H_S] == DT_S
 
@@ -167,12 +169,14 @@ def test_warm_up_loads_the_signatures_the_plant_calls():
     code = """
 from sim import plant_kernel
 from sim.params import PlantParams
-from sim.plant import ScalarPlant
+import numpy as np
+from sim.plant import Plant
 plant_kernel.warm_up(20)
-plant = ScalarPlant(PlantParams(), 0.002, event_levels=20)
-x = plant.update(0.0, (0.0,) * 5, (0.5, True))
-plant.key(x, 0.5, True)
-print(len(plant_kernel.step.signatures), len(plant_kernel.key.signatures))
+plant = Plant(PlantParams(), 1, 0.002, event_levels=20)
+x = plant.update(0.0, np.zeros((1, 5)), (np.array([0.5]), np.array([True])))
+x = plant.update(0.0, x, (np.array([0.5]), np.array([True])))
+plant.key(x[0], 0.5, True)
+print(len(plant_kernel.step_members.signatures), len(plant_kernel.key.signatures))
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["1", "1"]

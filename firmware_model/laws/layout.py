@@ -1,0 +1,49 @@
+"""The state layout both control laws share: every member's state is a column of a few
+``(rows, N)`` arrays, so that a compiled step takes five arrays instead of thirty.
+
+=====  ==========================  ==================================================
+array  dtype                       rows
+=====  ==========================  ==================================================
+``P``  float64                     published signals in axis units (``P_*``)
+``C``  int64                       counts and timer steps (``C_*``), then the PWM
+                                   compute-delay pipeline (``delay`` rows from
+                                   ``C_PIPE``)
+``S``  float64 (float law) or      controller and observer state (``S_*``), then the
+       int64 Q16.16 (fixed law)    current-reference pipeline (``delay + 1`` rows from
+                                   ``S_REF_PIPE``)
+``G``  as ``S`` (Q8.24 if fixed)   gains and derived per-member constants (``G_*``)
+``K``  float64, 1-D                shared constants (``K_*``) and the pipeline indices
+=====  ==========================  ==================================================
+"""
+
+from __future__ import annotations
+
+from firmware_model import fixedpoint as fx
+from firmware_model.units import AXIS_DEG_PER_COUNT, ENCODER_COUNTS_PER_REV
+
+REV = ENCODER_COUNTS_PER_REV
+HALF_REV = REV // 2
+# Q16.16 raw units of axis degrees per encoder count (exact: 18).
+Q_DEG_PER_COUNT = int(round(AXIS_DEG_PER_COUNT * (1 << fx.SIG_FRAC_BITS)))
+
+# P: published, float axis units.
+P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY = range(7)
+N_P = 7
+# C: integers.
+C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS = range(6)
+C_PIPE = 6
+# S: the law's arithmetic (float64 or Q16.16).
+S_EP, S_V, S_AD, S_VEL, S_I_V, S_I_I, S_VR, S_IREF, S_IMEAS, S_REF_D_LAST = range(10)
+S_REF_PIPE = 10
+# G: gains in the law's arithmetic (float64 or Q8.24).
+(
+    G_KP_P, G_VFF, G_KP_V, G_KI_V_DT, G_ACC_FF, G_KP_I, G_KI_I_DT, G_R_FF, G_EMF_FF,
+    G_KPOS_M1, G_KVEL, G_KDIST, G_K_VEL, G_K_ACC,
+) = range(14)  # fmt: skip
+N_G = 14
+# K: shared float constants; the two pipeline indices are stored as floats (exact).
+(
+    K_DPS_PER_COUNT_TICK, K_A_PER_ADC, K_SENSE_FLOOR, K_U_LIM, K_SUPPLY_V, K_ARR, K_DELAY,
+    K_I_LIMIT_A, K_REF_I, K_PIPE_I, K_A_PER_ADC_Q, K_HALF_Q, K_INV_SUPPLY_Q,
+) = range(13)  # fmt: skip
+N_K = 13
