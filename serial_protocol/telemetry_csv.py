@@ -1,7 +1,10 @@
 """Telemetry to CSV, as the PC side records it (``monitor --csv``, ``decode``).
 
 Columns: ``t_s`` (tick / tick_hz, the board's clock) then the ``Telemetry`` fields with their
-unit suffixes; ``state`` and ``fault`` are written by name.
+unit suffixes; ``state`` and ``fault`` are written by name. The message's ``current_a`` (the
+board's reading of the IS pin) is the column ``current_meas_a``, the name the simulator's
+``log.csv`` gives the same reading (its ``true_current_a`` is the plant's true current, which
+no board can send).
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ TELEMETRY_CSV_COLUMNS = (
     "sp_vel_dps",
     "pos_deg",
     "vel_dps",
-    "current_a",
+    "current_meas_a",
     "duty",
     "state",
     "fault",

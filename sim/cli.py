@@ -21,6 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "monitor": ("sim.commands.monitor", "talk to a board or 'serve --pty': commands, status, CSV"),
     "serve": ("sim.commands.serve", "run the simulated bench in real time behind a pty"),
     "tune": ("sim.commands.tune", "tune the three loops' gains offline; writes a tuned TOML"),
+    "plot": ("sim.commands.plot", "plot any log.csv, telemetry CSV, capture or CAN log"),
 }
 
 

@@ -1,6 +1,9 @@
 """A run log as CSV: one row per servo tick, the columns of ``sim.loop.LOG_FIELDS``.
 
-The header is documented in the README ("CSV columns"). Floats are written with 10
+The header is documented in the README ("CSV columns"). The log's ``current_a`` (the plant's
+true armature current) is written as ``true_current_a``, beside ``true_pos_deg``: no CSV the
+project writes has a bare ``current_a``, and the measured current is ``current_meas_a`` in
+every one (here, and in the telemetry CSVs of ``monitor`` and ``decode``). Floats are written with 10
 significant digits (enough for motor radians over hours of motion to 1e-6 rev), the integer
 ``state`` and ``fault`` codes as integers.
 """
@@ -16,6 +19,8 @@ from sim.loop import LOG_FIELDS, RunLog
 __all__ = ["read_csv", "write_csv"]
 
 _INT_FIELDS = ("state", "fault")
+#: RunLog field -> CSV column, where they differ.
+CSV_COLUMN = {"current_a": "true_current_a"}
 
 
 def write_csv(log: RunLog, path: str | Path) -> Path:
@@ -26,18 +31,22 @@ def write_csv(log: RunLog, path: str | Path) -> Path:
     fmt = ["%d" if f in _INT_FIELDS else "%.10g" for f in LOG_FIELDS]
     path = Path(path)
     table = np.column_stack([c.astype(float) for c in cols])
-    np.savetxt(path, table, fmt=fmt, delimiter=",", header=",".join(LOG_FIELDS), comments="")
+    header = ",".join(CSV_COLUMN.get(f, f) for f in LOG_FIELDS)
+    np.savetxt(path, table, fmt=fmt, delimiter=",", header=header, comments="")
     return path
 
 
 def read_csv(path: str | Path) -> RunLog:
     """Read a CSV written by ``write_csv`` back into a ``RunLog``."""
     data = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
-    missing = [f for f in LOG_FIELDS if f not in (data.dtype.names or ())]
+    names = data.dtype.names or ()
+    # a file written before the rename has current_a for the true current
+    column = {f: CSV_COLUMN.get(f, f) if CSV_COLUMN.get(f, f) in names else f for f in LOG_FIELDS}
+    missing = [column[f] for f in LOG_FIELDS if column[f] not in names]
     if missing:
         raise ValueError(f"{path}: missing columns {missing}")
     cols = {
-        f: data[f].astype(np.int64) if f in _INT_FIELDS else data[f].astype(float)
+        f: data[column[f]].astype(np.int64) if f in _INT_FIELDS else data[column[f]].astype(float)
         for f in LOG_FIELDS
     }
     return RunLog(**cols)

@@ -4,7 +4,6 @@ plot.png."""
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from pathlib import Path
 
@@ -19,36 +18,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 
-def _bar(stream, width: int = 40):
-    start = time.perf_counter()
-
-    def progress(tick: int, n_ticks: int) -> None:
-        done = int(width * tick / n_ticks)
-        wall = time.perf_counter() - start
-        stream.write(f"\r[{'#' * done}{'.' * (width - done)}] {tick}/{n_ticks} ticks {wall:.1f} s")
-        if tick == n_ticks:
-            stream.write("\n")
-        stream.flush()
-
-    return progress
-
-
 def main(args: argparse.Namespace) -> int:
     from sim import plant_kernel
     from sim.config import load_experiment
     from sim.csvlog import write_csv
     from sim.loop import run
+    from sim.progress import Progress
 
     exp = load_experiment(args.config)
     args.out.mkdir(parents=True, exist_ok=True)
-    progress = None if args.quiet else _bar(sys.stderr)
     # The compiled plant step loads once per process (numba's start-up): timed apart, so
     # that the real-time factor below is the simulation's.
     load0 = time.perf_counter()
     plant_kernel.warm_up(exp.bench.loop.event_levels)
     load_s = time.perf_counter() - load0
+    n_ticks = max(1, round(exp.duration_s / exp.bench.dt_s))
     wall0 = time.perf_counter()
-    result = run(exp, seed=args.seed, progress=progress)
+    # The project's progress display: a bar with ETA on a terminal, a few lines in a log.
+    with Progress(args.config.name, n_ticks, enabled=not args.quiet) as bar:
+        result = run(exp, seed=args.seed, progress=bar.callback)
     wall_s = time.perf_counter() - wall0
     log = result.log
     csv_path = write_csv(log, args.out / "log.csv")
@@ -56,7 +44,8 @@ def main(args: argparse.Namespace) -> int:
     if not args.no_plot:
         from sim.plot import plot_run
 
-        outputs.append(plot_run(log, args.out / "plot.png", exp.title or args.config.stem))
+        plot_run(log, args.out / "plot.png", exp.title or args.config.stem)
+        outputs.append(args.out / "plot.png")
     if not args.quiet:
         faults = sorted({int(f) for f in log.fault if f})
         print(

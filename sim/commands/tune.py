@@ -129,14 +129,16 @@ def main(args: argparse.Namespace) -> int:
     toml_out = args.out / f"{args.config.stem}_tuned.toml"
     report.write_tuned_toml(args.config, toml_out, result.gains, note)
     offset = BOOT_OFFSET_COUNTS * AXIS_DEG_PER_COUNT
-    title = f"{scenarios[0].title} (time scale 1/{args.time_scale:g})"
-    ba = plots.plot_before_after(
+    ba = args.out / "before_after.png"
+    plots.plot_before_after(
         {k: final.logs[0].member(j) for j, k in enumerate(labels) if k in ("config", "tuned")},
-        args.out / "before_after.png",
-        title,
+        ba,
+        scenarios[0].title,
         pos_offset_deg=offset,
+        time_scale=args.time_scale,
     )
-    bode = plots.plot_bode(loops, args.out / "bode.png", "loop gains L(z)")
+    bode = args.out / "bode.png"
+    plots.plot_bode(loops, bode, "loop gains L(z)")
 
     robust_md = ""
     if not args.no_robust:

@@ -13,11 +13,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from serial_protocol.messages import Profile
 from sim.reproduce.experiments import Runner, Trace, load, replace_move
 from sim.reproduce.metrics import RunMetrics, measure
-from sim.reproduce.plots import Curve, paper_figure
+from sim.reproduce.plots import SHAFT_NOTE, Curve, paper_figure, position_label, quick_note, sci
 
 __all__ = [
     "PAPER_ARRIVAL_S",
@@ -97,17 +98,23 @@ def run(runner: Runner) -> Fig6Result:
     return Fig6Result(step, planned, measure(step, limit), measure(planned, limit), 1.0)
 
 
-def plot(result: Fig6Result, path: str | Path, current_limit_a: float) -> Path:
-    """Fig. 6 drawn like the paper's: both runs on one set of axes."""
-    scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
+def plot(result: Fig6Result, path: str | Path | None, current_limit_a: float) -> Figure:
+    """Fig. 6 drawn like the paper's: both runs on one set of axes (returns the figure,
+    saved to ``path`` if given)."""
     a_max = result.planned.command_a_max_dps2[-1]
+    target_deg = result.planned.command_target_deg[-1]
     return paper_figure(
         [
             Curve(result.step, "without planning (step command)", "tab:red"),
-            Curve(result.planned, f"trapezoid planning (a_max {a_max:g} deg/s^2)", "tab:blue"),
-        ],
+            Curve(
+                result.planned, f"trapezoid planning ($a_{{max}}$ = {a_max:g} °/s$^2$)", "tab:blue"
+            ),
+        ],  # fmt: skip
         path,
-        title=f"Fig. 6: step command S = 3e6 mdeg, with and without planning{scale}",
+        title=f"Fig. 6: step command S = {sci(target_deg * 1000.0)} m° ({target_deg:g} °), "
+        f"with and without planning{quick_note(result.time_scale)}",
         current_limit_a=current_limit_a,
-        note="Without planning the setpoint is the target itself (dashed line at 0 deg/s).",
+        pos_label=position_label(result.time_scale),
+        note="Without planning the setpoint is the target itself (dashed line at 0 °/s). "
+        + SHAFT_NOTE,
     )

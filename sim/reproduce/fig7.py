@@ -12,11 +12,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from planner import plan_trapezoid
 from sim.reproduce.experiments import Runner, Trace, load, replace_move, with_duration
 from sim.reproduce.metrics import RunMetrics, measure
-from sim.reproduce.plots import Curve, paper_figure
+from sim.reproduce.plots import SHAFT_NOTE, Curve, paper_figure, position_label, quick_note, sci
 
 __all__ = [
     "PAPER_TARGETS",
@@ -140,28 +141,39 @@ def run(runner: Runner, *, scurve_ramp_s: float | None = None) -> Fig7Result:
     return Fig7Result(tuple(runs), v_max, a_max, k, runs[0].t_interrupt_s)
 
 
-def plot(result: Fig7Result, path: str | Path, current_limit_a: float, title: str = "") -> Path:
-    """Fig. 7 drawn like the paper's: the four runs, time 0 at the interrupt."""
+def plot(
+    result: Fig7Result,
+    path: str | Path | None,
+    current_limit_a: float,
+    title: str = "",
+    acceleration: bool = False,
+) -> Figure:
+    """Fig. 7 drawn like the paper's: the four runs, time 0 at the interrupt (returns the
+    figure, saved to ``path`` if given). Labels give this run's values (``--quick`` runs
+    are scaled) with the paper's target beside; ``acceleration`` adds the planned
+    acceleration/jerk panel (the S-curve figure)."""
     colors = ("tab:blue", "tab:orange", "tab:green", "tab:red")
-    curves = [
-        Curve(
-            r.trace,
-            f"{r.name} = {r.target_mdeg:.0e} mdeg: case {r.observed_case}".replace("e+0", "e"),
-            c,
-            t_offset_s=r.t_interrupt_s,
-        )
-        for r, c in zip(result.runs, colors, strict=True)
-    ]
-    scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
-    v0 = PAPER_V0_DPS / result.time_scale
-    k2 = result.time_scale**2
+    k = result.time_scale
+    curves = []
+    for r, c in zip(result.runs, colors, strict=True):
+        name = "S$_{" + r.name.split("_")[-1] + "}$"
+        target_deg = r.target_mdeg / 1000.0 / (k * k)
+        paper = f"; paper {sci(r.target_mdeg)}" if k != 1.0 else f" ({sci(r.target_mdeg)} m°)"
+        label = f"{name} = {sci(target_deg)} °{paper}: case {r.observed_case}"
+        curves.append(Curve(r.trace, label, c, t_offset_s=r.t_interrupt_s))
+    v0 = PAPER_V0_DPS / k
+    k2 = k * k
+    profile = "S-curve" if acceleration else "trapezoid"
     return paper_figure(
         curves,
         path,
-        title=title or f"Fig. 7: four targets from 0 deg at {v0:g} deg/s (trapezoid){scale}",
+        title=(title or f"Fig. 7: four targets from 0 ° at {v0:g} °/s ({profile})") + quick_note(k),
         current_limit_a=current_limit_a,
-        shade=(-result.run_up_s, 0.0, f"run-up to {v0:g} deg/s"),
+        pos_label=position_label(k),
+        shade=(-result.run_up_s, 0.0, f"run-up to {v0:g} °/s"),
         time_label="time from the interrupt (s)",
-        note=f"Grey: the run-up (move to {-200 / k2:g} deg, then towards {50000 / k2:g} deg at "
-        f"{v0:g} deg/s), interrupted at 0 deg by the Fig. 7 move. Legend: the paper's targets.",
+        acceleration=acceleration,
+        note=f"Grey: the run-up (move to {-200 / k2:g} °, then towards {50000 / k2:g} ° at "
+        f"{v0:g} °/s), interrupted at 0 ° by the Fig. 7 move. S$_3$ and S$_4$ share their "
+        "first part: the later curve is drawn narrower. " + SHAFT_NOTE,
     )

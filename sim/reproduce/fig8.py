@@ -10,11 +10,21 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from planner import OnlinePlanner
 from sim.reproduce.experiments import Runner, Trace, load
 from sim.reproduce.metrics import RunMetrics, measure, replan_steps
-from sim.reproduce.plots import Curve, Marker, paper_figure
+from sim.reproduce.plots import (
+    SHAFT_NOTE,
+    Curve,
+    Marker,
+    Point,
+    paper_figure,
+    position_label,
+    quick_note,
+    sci,
+)
 
 __all__ = [
     "PAPER_TABLE1",
@@ -173,24 +183,35 @@ def run(runner: Runner, *, scurve_ramp_s: float | None = None) -> Fig8Result:
     return Fig8Result(trace, measure(trace, limit), _rows(trace, k), a_max, k, profile)
 
 
-def plot(result: Fig8Result, path: str | Path, current_limit_a: float) -> Path:
-    """Fig. 8 drawn like the paper's, replan instants marked."""
+def plot(result: Fig8Result, path: str | Path | None, current_limit_a: float) -> Figure:
+    """Fig. 8 drawn like the paper's: replan instants marked, and the paper's Table 1
+    velocities crossed at the paper's times, so that the difference is visible (returns the
+    figure, saved to ``path`` if given)."""
     tr = result.trace
+    k = result.time_scale
     markers = []
     for n, (t_cmd, target) in enumerate(zip(tr.command_t_s, tr.command_target_deg, strict=True)):
-        markers.append(Marker(t_cmd, f"S_{n + 1} = {target * 1000:.0e}".replace("e+0", "e")))
-    a_text = f"a_max = {result.a_max_dps2:g} deg/s^2"
-    scale = " (--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""
+        markers.append(Marker(t_cmd, f"S$_{n + 1}$ = {sci(target)} °"))
+    scaled = f" (÷{k:g})" if k != 1.0 else ""
+    points = [
+        Point(t_s / k, vel / k, f"Table 1{scaled}: {sci(vel / k)} °/s at {t_s / k:g} s")
+        for _, _, vel, t_s in PAPER_TABLE1[1:]
+    ]
     profile = "S-curve" if result.profile == "scurve" else result.profile
-    title = f"Fig. 8: four moves, replanned before each ended ({profile}, {a_text}){scale}"
+    a_text = f"$a_{{max}}$ = {result.a_max_dps2:g} °/s$^2$"
+    title = f"Fig. 8: four moves, replanned before each ended ({profile}, {a_text})"
     return paper_figure(
         [Curve(tr, "measured (board velocity estimate)", "tab:blue")],
         path,
-        title=title,
+        title=title + quick_note(k),
         current_limit_a=current_limit_a,
+        pos_label=position_label(k),
         markers=markers,
+        points=points,
+        acceleration=result.profile == "scurve",
         note="Dotted lines: the instants at which the board received each target (the "
-        "paper's replans). Data: telemetry frames decoded by the PC.",
+        "paper's replans; paper targets 3, −8, −6, −1 ×10$^6$ m°). Crosses: the paper's "
+        "Table 1. Data: telemetry frames decoded by the PC. " + SHAFT_NOTE,
     )
 
 

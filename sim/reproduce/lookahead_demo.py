@@ -20,12 +20,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from planner import plan_program, plan_trapezoid
 from sim.config import Experiment, ScriptedCommand
 from sim.reproduce.experiments import Runner, Trace, load, move_commands
 from sim.reproduce.metrics import arrival_t_s
-from sim.reproduce.plots import Curve, Marker, paper_figure
+from sim.reproduce.plots import SHAFT_NOTE, Curve, Marker, paper_figure, position_label, quick_note
 
 __all__ = ["DWELL_S", "GRID_S", "LookaheadResult", "plot", "run", "schedule"]
 
@@ -151,24 +152,28 @@ def run(runner: Runner) -> LookaheadResult:
     )
 
 
-def plot(result: LookaheadResult, path: str | Path, current_limit_a: float) -> Path:
+def plot(result: LookaheadResult, path: str | Path | None, current_limit_a: float) -> Figure:
+    """Stop at every waypoint against the look-ahead (returns the figure, saved to
+    ``path`` if given; labels give this run's values, scaled under ``--quick``)."""
+    k = result.time_scale
     markers = []
     for name, t in (("stop at each: done", result.done_stop_each_s),
                     ("look-ahead: done", result.done_lookahead_s)):  # fmt: skip
         if t is not None:
-            markers.append(Marker(t / result.time_scale, name, at_top=False))
-    wp = ", ".join(f"{w:g}" for w in result.waypoints_deg)
+            markers.append(Marker(t / k, name, at_top=False))
+    wp = ", ".join(f"{w / (k * k):g}" for w in result.waypoints_deg)
     return paper_figure(
         [
             Curve(result.stop_each, "stop at every waypoint", "tab:gray"),
             Curve(result.lookahead, "seed 001 look-ahead (stop at reversals only)", "tab:blue"),
         ],
         path,
-        title=f"Waypoint program {wp} deg (v_max {result.v_max_dps:g} deg/s, "
-        f"a_max {result.a_max_dps2:g} deg/s^2)"
-        + ("\n(--quick: times / 4, positions / 16)" if result.time_scale != 1.0 else ""),
+        title=f"Waypoint program {wp} ° ($v_{{max}}$ {result.v_max_dps / k:g} °/s, "
+        f"$a_{{max}}$ {result.a_max_dps2:g} °/s$^2$)"
+        + ("\n" + quick_note(k).strip() if k != 1.0 else ""),
         current_limit_a=current_limit_a,
+        pos_label=position_label(k),
         markers=markers,
-        note=f"Each stop is followed by a {DWELL_S:g} s pause (the PC's rule); dotted lines: "
-        "arrival at the last waypoint.",
+        note=f"Each stop is followed by a {DWELL_S / k:g} s pause (the PC's rule); dotted lines: "
+        "arrival at the last waypoint. " + SHAFT_NOTE,
     )

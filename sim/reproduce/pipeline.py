@@ -69,11 +69,10 @@ def reproduce(
     r6 = fig6.run(runner)
     r7 = fig7.run(runner)
     r8 = fig8.run(runner)
-    paths = [
-        fig6.plot(r6, out / "fig6.png", limit_a),
-        fig7.plot(r7, out / "fig7.png", limit_a),
-        fig8.plot(r8, out / "fig8.png", limit_a),
-    ]
+    fig6.plot(r6, out / "fig6.png", limit_a)
+    fig7.plot(r7, out / "fig7.png", limit_a)
+    fig8.plot(r8, out / "fig8.png", limit_a)
+    paths = [out / "fig6.png", out / "fig7.png", out / "fig8.png"]
     tel = out / TELEMETRY_DIR
     traces = [("fig6_step", r6.step), ("fig6_trapezoid", r6.planned), ("fig8", r8.trace)]
     traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
@@ -83,18 +82,19 @@ def reproduce(
     if extras:
         s2 = seed002.run(runner)
         sc = scurve_extras.run(runner, r7, r8)
-        scale = " (--quick: times / 4, positions / 16)" if quick else ""
-        paths.append(
-            fig7.plot(
-                sc.fig7,
-                out / "fig7_scurve.png",
-                limit_a,
-                title=f"Fig. 7 with the S-curve planner (j_max {sc.j_max_dps3:g} deg/s^3){scale}",
-            )
+        k = sc.fig7.time_scale
+        fig7.plot(
+            sc.fig7,
+            out / "fig7_scurve.png",
+            limit_a,
+            # the run's jerk: the time scaling multiplies it by k
+            title=f"Fig. 7 with the S-curve planner ($j_{{max}}$ {sc.j_max_dps3 * k:g} °/s$^3$)",
+            acceleration=True,
         )
-        paths.append(fig8.plot(sc.fig8, out / "fig8_scurve.png", limit_a))
+        fig8.plot(sc.fig8, out / "fig8_scurve.png", limit_a)
         la = lookahead_demo.run(runner)
-        paths.append(lookahead_demo.plot(la, out / "lookahead.png", limit_a))
+        lookahead_demo.plot(la, out / "lookahead.png", limit_a)
+        paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png"]
     wall_s = time.monotonic() - wall0
     inputs = report.ReportInputs(
         fig6=r6,

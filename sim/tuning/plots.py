@@ -16,9 +16,18 @@ __all__ = ["plot_before_after", "plot_bode"]
 
 
 def plot_before_after(
-    logs: Mapping[str, RunLog], path: str | Path, title: str, pos_offset_deg: float = 0.0
-) -> Path:
-    """Tracking error, velocity error and current of each labelled single-axis log."""
+    logs: Mapping[str, RunLog],
+    path: str | Path | None,
+    title: str,
+    pos_offset_deg: float = 0.0,
+    time_scale: float = 1.0,
+) -> Figure:
+    """Tracking error, velocity error and current of each labelled single-axis log.
+
+    ``time_scale``: the scenario ran with times and velocities / K, positions / K² (``tune
+    --time-scale``); the title then says so, since its text gives the unscaled times.
+    Returns the figure; saves it to ``path`` if given.
+    """
     fig = Figure(figsize=(10, 8), layout="constrained")
     ax_e, ax_v, ax_i = fig.subplots(3, 1, sharex=True)
     for label, log in logs.items():
@@ -27,23 +36,32 @@ def plot_before_after(
         ax_e.plot(t, err, lw=1.0, label=label)
         ax_v.plot(t, log.vel_dps - log.sp_vel_dps, lw=0.8, label=label)
         ax_i.plot(t, log.current_a, lw=0.8, label=label)
-    ax_e.set_ylabel("tracking error (axis deg)")
-    ax_v.set_ylabel("velocity error (axis deg/s)")
+    ax_e.set_ylabel("tracking error\nsetpoint − true position (°)")
+    ax_v.set_ylabel("velocity error\nestimate − setpoint (°/s)")
     ax_i.set_ylabel("motor current (A)")
-    ax_i.set_xlabel("time (s)")
+    ax_i.set_xlabel("time of the scaled run (s)" if time_scale != 1.0 else "time (s)")
+    ax_i.set_xlabel(ax_i.get_xlabel() + "\nAngles of the gearmotor output shaft (motor / 80).")
     for ax in (ax_e, ax_v, ax_i):
         ax.grid(True, alpha=0.3)
     ax_e.legend(loc="upper right")
+    if time_scale != 1.0:
+        k = time_scale
+        title += (
+            f"\nrun time-scaled: times and velocities / {k:g}, positions / {k * k:g} "
+            f"(the times above are the unscaled scenario's; here they come {k:g}x sooner)"
+        )
     fig.suptitle(title)
-    fig.savefig(path, dpi=110)
-    return Path(path)
+    if path is not None:
+        fig.savefig(path, dpi=110)
+    return fig
 
 
 def plot_bode(
-    loops: Mapping[str, Mapping[str, LoopTransfer]], path: str | Path, title: str = ""
-) -> Path:
+    loops: Mapping[str, Mapping[str, LoopTransfer]], path: str | Path | None, title: str = ""
+) -> Figure:
     """Bode plots of the loop gains: one column per loop, one curve per labelled gain set;
-    the gain crossover is marked, the margins are in the legend."""
+    the gain crossover is marked, the margins are in the legend. Returns the figure; saves
+    it to ``path`` if given."""
     fig = Figure(figsize=(13, 6.5), layout="constrained")
     axes = fig.subplots(2, len(LOOPS), sharex="col")
     for col, loop in enumerate(LOOPS):
@@ -58,7 +76,7 @@ def plot_bode(
             # (-360, 0], the usual reading of a loop gain.
             phase -= 360.0 * np.ceil(phase[0] / 360.0)
             m = margins(lt)
-            text = f"{label}: PM {m.phase_margin_deg:.0f} deg, GM {m.gain_margin_db:.1f} dB"
+            text = f"{label}: PM {m.phase_margin_deg:.0f}°, GM {m.gain_margin_db:.1f} dB"
             (line,) = ax_m.semilogx(f, mag_db, label=text)
             ax_p.semilogx(f, phase, color=line.get_color())
             if np.isfinite(m.crossover_hz):
@@ -68,12 +86,13 @@ def plot_bode(
         ax_p.axhline(-180.0, color="k", lw=0.6)
         ax_m.set_title(f"{loop} loop ({1.0 / lt.dt_s:.0f} Hz)")
         ax_m.set_ylabel("|L| (dB)")
-        ax_p.set_ylabel("phase of L (deg)")
+        ax_p.set_ylabel("phase of L (°)")
         ax_p.set_xlabel("frequency (Hz)")
         for ax in (ax_m, ax_p):
             ax.grid(True, which="both", alpha=0.3)
         ax_m.legend(fontsize=7, loc="lower left")
     if title:
         fig.suptitle(title)
-    fig.savefig(path, dpi=100)
-    return Path(path)
+    if path is not None:
+        fig.savefig(path, dpi=100)
+    return fig

@@ -8,7 +8,7 @@ import numpy as np
 
 from sim import cli
 from sim.config import load_experiment
-from sim.csvlog import read_csv, write_csv
+from sim.csvlog import CSV_COLUMN, read_csv, write_csv
 from sim.loop import LOG_FIELDS, run
 
 BENCH = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
@@ -29,7 +29,9 @@ def test_run_writes_csv_and_png(tmp_path, capsys):
     out = tmp_path / "out"
     assert cli.main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
     header = (out / "log.csv").read_text().splitlines()[0]
-    assert header == ",".join(LOG_FIELDS)
+    assert header == ",".join(CSV_COLUMN.get(f, f) for f in LOG_FIELDS)
+    # one meaning per name in every CSV: the true current says so, the measured one too
+    assert "true_current_a" in header.split(",") and "current_a" not in header.split(",")
     png = (out / "plot.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
     log = read_csv(out / "log.csv")
@@ -44,6 +46,16 @@ def test_csv_round_trip_keeps_the_numbers(tmp_path):
     back = read_csv(write_csv(log, tmp_path / "log.csv"))
     for f in LOG_FIELDS:
         np.testing.assert_allclose(getattr(back, f), getattr(log, f), rtol=1e-9, atol=1e-12)
+
+
+def test_a_log_written_before_the_rename_still_reads(tmp_path):
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text(EXP)
+    log = run(load_experiment(cfg)).log
+    path = write_csv(log, tmp_path / "log.csv")
+    text = path.read_text()
+    path.write_text(text.replace("true_current_a", "current_a", 1))
+    np.testing.assert_allclose(read_csv(path).current_a, log.current_a, rtol=1e-9)
 
 
 def test_config_error_exits_2_naming_the_key(tmp_path, capsys):

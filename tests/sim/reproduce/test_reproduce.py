@@ -182,3 +182,64 @@ def test_every_move_of_every_run_was_acknowledged(output):
     for trace in traces:
         assert trace.nacks == (), trace.name
         assert len(trace.acks) == len(trace.command_t_s), trace.name
+
+
+# ---------------------------------------------------------------- the figures, by content
+
+
+def _texts(fig) -> str:
+    """Every text of a figure (titles, labels, legend entries, annotations), one string."""
+    return "\n".join(t.get_text() for t in fig.findobj(lambda a: hasattr(a, "get_text")))
+
+
+def test_figures_name_the_shaft_and_write_units_in_mathtext(output):
+    from sim.reproduce import fig7 as fig7_mod
+
+    fig = fig8.plot(output.inputs.fig8, None, output.inputs.current_limit_a)
+    axes = fig.get_axes()
+    labels = [ax.get_ylabel() for ax in axes]
+    assert labels[0] == "output shaft velocity (°/s)"
+    assert any("measured − planned" in label for label in labels)  # the error panel
+    text = _texts(fig)
+    assert "deg/s" not in text and "deg/s^2" not in text and "°/s$^2$" in text
+    assert "gearmotor output shaft" in text
+    # --quick labels say what this run did: v0 100 deg/s, not the paper's 400 at 1e7 mdeg
+    fig = fig7_mod.plot(output.inputs.fig7, None, output.inputs.current_limit_a)
+    legend = [t.get_text() for t in fig.get_axes()[0].get_legend().get_texts()]
+    assert legend[0].startswith("S$_{1}$ = 625 °; paper 10$^{7}$: case a")
+    title = fig.get_suptitle()
+    assert "from 0 ° at 100 °/s" in title and "--quick: times and velocities / 4" in title
+
+
+def test_fig8_crosses_the_paper_table1_points(output):
+    fig = fig8.plot(output.inputs.fig8, None, output.inputs.current_limit_a)
+    ax_v = fig.get_axes()[0]
+    crosses = [ln for ln in ax_v.get_lines() if ln.get_marker() == "x"]
+    k = QUICK_TIME_SCALE
+    points = sorted((float(ln.get_xdata()[0]), float(ln.get_ydata()[0])) for ln in crosses)
+    assert points == [(2.0 / k, 296.0 / k), (10.0 / k, -990.0 / k), (16.0 / k, -294.0 / k)]
+
+
+def test_the_scurve_figures_have_an_acceleration_and_jerk_panel(output):
+    from sim.reproduce import fig7 as fig7_mod
+
+    sc = output.inputs.scurve
+    for fig in (
+        fig8.plot(sc.fig8, None, output.inputs.current_limit_a),
+        fig7_mod.plot(sc.fig7, None, output.inputs.current_limit_a, acceleration=True),
+    ):
+        labels = [ax.get_ylabel() for ax in fig.get_axes()]
+        assert "planned\nacceleration (°/s$^2$)" in labels
+        assert "planned jerk (°/s$^3$)" in labels
+    trap = fig8.plot(output.inputs.fig8, None, output.inputs.current_limit_a)
+    assert "planned\nacceleration (°/s$^2$)" not in [ax.get_ylabel() for ax in trap.get_axes()]
+
+
+def test_fig7_s3_is_not_hidden_under_s4(output):
+    from sim.reproduce import fig7 as fig7_mod
+
+    fig = fig7_mod.plot(output.inputs.fig7, None, output.inputs.current_limit_a)
+    wide = [ln for ln in fig.get_axes()[0].get_lines() if ln.get_linestyle() == "-"]
+    s3, s4 = wide[2], wide[3]
+    # drawn later, S4 is narrower: where they coincide, S3 shows on both sides of it
+    assert s3.get_linewidth() > s4.get_linewidth() + 0.5
