@@ -11,6 +11,9 @@ Only this module and ``can_link`` import the I/O libraries.
 
 from __future__ import annotations
 
+import os
+import select
+import socket
 import time
 from typing import BinaryIO, Protocol
 
@@ -24,6 +27,8 @@ __all__ = ["Link", "SerialLink", "open_serial"]
 
 #: A line quiet for this long ends any partial frame (``Decoder.flush``).
 IDLE_FLUSH_S = 0.05
+#: One read takes at most this many bytes (a second of a 460800-baud line fits).
+READ_CHUNK_BYTES = 65536
 
 
 class Link(Protocol):
@@ -68,6 +73,8 @@ class SerialLink:
         self.frames_out = 0
         self._seq = 0
         self._last_rx_wall_s = time.monotonic()
+        self._fd = _read_fd(port)
+        self._last_text = b""
 
     @classmethod
     def open(cls, url: str, baud: int = 115200, capture: BinaryIO | None = None) -> SerialLink:
@@ -77,12 +84,28 @@ class SerialLink:
         discarded.
         """
         port = open_serial(url, baud)
+        sock = getattr(port, "_socket", None)
         try:
-            port.reset_input_buffer()
+            if isinstance(sock, socket.socket):
+                # A TCP stream (socket://) sends each frame at once instead of waiting for
+                # the peer's delayed ACK (Nagle), as a serial line would.
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            else:
+                port.reset_input_buffer()
         except (serial.SerialException, OSError) as exc:
             port.close()
             raise LinkError(f"cannot flush serial port {url!r}: {exc}") from exc
-        return cls(port, capture)
+        link = cls(port, capture)
+        if isinstance(sock, socket.socket):
+            # pyserial's reset_input_buffer would also swallow a server's refusal and the
+            # end of the stream; drain here instead, so that a refusal is reported.
+            try:
+                while link._read(0.0):
+                    pass
+            except LinkError:
+                port.close()
+                raise
+        return link
 
     def __enter__(self) -> SerialLink:
         return self
@@ -107,14 +130,7 @@ class SerialLink:
 
     def poll(self, timeout_s: float) -> list[Message | Malformed]:
         """Wait up to ``timeout_s`` for bytes; return the messages they complete."""
-        port = self.port
-        try:
-            port.timeout = max(0.0, timeout_s)
-            data = port.read(1)
-            if data and port.in_waiting:
-                data += port.read(port.in_waiting)
-        except (serial.SerialException, OSError) as exc:
-            raise LinkError(f"read from {port.port!r} failed: {exc}") from exc
+        data = self._read(max(0.0, timeout_s))
         now_s = time.monotonic()
         if not data:
             if self.decoder.pending_bytes and now_s - self._last_rx_wall_s > IDLE_FLUSH_S:
@@ -126,6 +142,43 @@ class SerialLink:
             self.capture.write(data)
         return self.decoder.feed(data)
 
+    def _read(self, timeout_s: float) -> bytes:
+        """Wait up to ``timeout_s`` for input and return all of it that is there.
+
+        A port with a file descriptor (a tty, a pty, ``socket://``) is read with one
+        ``select`` and one ``os.read`` of up to ``READ_CHUNK_BYTES``; pyserial's own
+        ``read`` would take one or two bytes per call over ``socket://``, whose
+        ``in_waiting`` is only 0 or 1."""
+        port = self.port
+        fd = self._fd
+        try:
+            if fd is None:
+                if port.timeout != timeout_s:
+                    port.timeout = timeout_s
+                data = port.read(1)
+                if data and port.in_waiting:
+                    data += port.read(port.in_waiting)
+                return data
+            ready, _, _ = select.select([fd], [], [], timeout_s)
+            if not ready:
+                return b""
+            data = os.read(fd, READ_CHUNK_BYTES)
+        except ConnectionResetError:
+            data = b""  # the peer closed with data unread: the same end as a close
+        except (serial.SerialException, OSError) as exc:
+            raise LinkError(f"read from {port.port!r} failed: {exc}") from exc
+        if not data:
+            said = self._last_text.decode("ascii", "replace").strip()
+            raise LinkError(
+                f"{port.port!r}: the other end closed the connection"
+                + (f"; it said: {said!r}" if said else "")
+            )
+        # Keep the last line of plain text received (a server's refusal, say) for the
+        # message above; frames are binary and do not count.
+        if all(32 <= b < 127 or b in (9, 10, 13) for b in data[-200:]):
+            self._last_text = data[-200:]
+        return data
+
     def stats(self) -> DecoderStats:
         """The receive decoder's counters."""
         return self.decoder.stats()
@@ -134,3 +187,14 @@ class SerialLink:
         """Close the port (idempotent)."""
         if self.port.is_open:
             self.port.close()
+
+
+def _read_fd(port: serial.SerialBase) -> int | None:
+    """The file descriptor to ``select`` on for ``port``, or None (``loop://``, Windows)."""
+    if os.name != "posix":
+        return None
+    try:
+        fd = port.fileno()
+    except (AttributeError, NotImplementedError, serial.SerialException, OSError, ValueError):
+        return None
+    return fd if isinstance(fd, int) and fd >= 0 else None

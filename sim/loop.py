@@ -338,6 +338,18 @@ class Simulation:
         """Bytes from the PC to the board; they enter the board's RX line as it has room."""
         self._pc_out += data
 
+    @property
+    def pc_pending_bytes(self) -> int:
+        """Bytes the PC wrote that have not yet entered the board's RX line."""
+        return len(self._pc_out)
+
+    def pc_discard(self) -> int:
+        """Forget the PC's bytes not yet on the line (the PC program went away); return
+        how many there were."""
+        n = len(self._pc_out)
+        self._pc_out.clear()
+        return n
+
     def pc_read(self) -> bytes:
         """Bytes the PC received from the board since the last call."""
         out = bytes(self._pc_in)

@@ -1,15 +1,29 @@
-"""``turntable-sim serve --pty``: the simulated bench behind a pseudo-terminal, a TCP port or
-a CAN bus, in real time (or faster).
+"""``turntable-sim serve``: the simulated bench behind a pseudo-terminal, a TCP port or a CAN
+bus, in real time (or faster).
 
 ``--pty``: any PC program (a serial terminal, ``turntable-sim monitor``, the user's own tool)
 opens the printed ``/dev/pts/N`` as if it were the board's USB–serial port. The pty is in raw
 mode (``tty.setraw``). A pty ignores the baud rate, so the simulator paces the bytes itself:
-they cross the emulated UART at the bench's ``[telemetry] baud`` in simulated time, and
-simulated time follows the wall clock times ``--speed``.
+they cross the emulated UART at the bench's ``[telemetry] baud`` in simulated time, simulated
+time follows the wall clock times ``--speed``, and the bytes are written to the pty no faster
+than the line carries them in wall time (``LinePacer``: at most one 2 ms bucket above the
+line's capacity in any interval, from the first tick on, however late the process runs).
+When the process falls behind by more than ``MAX_LAG_S`` the simulated time slips instead of
+catching up in a burst (stated on exit). A PC program that reads too slowly loses whole
+frames (the oldest first), never part of one; all of it is counted and printed on exit.
+
+The address is printed on stdout once the server can answer (the compiled kernels loaded,
+the first tick done). SIGTERM and SIGHUP stop it as Ctrl-C does (the ``--link`` symlink is
+removed).
 
 ``--tcp PORT``: the same byte stream on a TCP port (pyserial ``socket://host:PORT``), one
-client at a time. ``--can IF/CHANNEL``: a gateway puts the board's messages on a CAN bus
-(docs/protocol.md, section 8) and forwards the commands it receives to the board.
+client at a time, with ``TCP_NODELAY``. A second client receives one line of text
+(``sim.endpoints.BUSY_MESSAGE``) and is disconnected. The input is drained as it arrives and
+kept within a bounded backlog (a client writing faster than the line loses whole frames,
+counted); when a client disconnects, what it sent and the board has not yet received is
+forgotten, so the next client is not queued behind it. ``--can IF/CHANNEL``: a gateway puts
+the board's messages on a CAN bus (docs/protocol.md, section 8) and forwards the commands it
+receives to the board.
 """
 
 from __future__ import annotations
@@ -21,11 +35,15 @@ from typing import Any
 
 HELP = "run the simulated bench in real time behind a pty (/dev/pts/N), TCP port or CAN bus"
 
-#: At most this many ticks are simulated in one burst when the simulation falls behind.
+#: At most this many ticks are simulated in one pass of the loop.
 MAX_CATCH_UP_TICKS = 50
-#: Bytes waiting for a PC program that does not read are dropped past this size (a real
-#: USB–serial adapter with nobody reading loses them too); counted, never silent.
-MAX_PENDING_BYTES = 4096
+#: A simulation that falls further behind the wall clock than this slips: simulated time
+#: is let go rather than caught up in a burst (counted as ``slipped``).
+MAX_LAG_S = 0.1
+#: The PC's bytes are handed to the board's RX line while fewer than this wait for it.
+FEED_BYTES = 256
+#: The output pacer's bucket: this much of the line's time may go out at once.
+BURST_S = 0.002
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,9 +83,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import select
+    import signal
+    import threading
     import time
 
     from serial_protocol.exceptions import CommandError
+    from serial_protocol.pacing import LinePacer
+    from serial_protocol.uart import bytes_per_s
+    from sim import endpoints, plant_kernel
     from sim.config import load_bench
     from sim.loop import Simulation
 
@@ -80,12 +103,20 @@ def main(args: argparse.Namespace) -> int:
     bench = sim.bench
     dt_s = sim.dt_s
     end_tick = None if args.duration is None else round(args.duration / dt_s)
+    baud = bench.firmware.telemetry.baud
+    # The line's capacity in wall time: --speed simulated seconds pass per wall second.
+    line_bytes_per_s = bytes_per_s(baud) * args.speed
+    unpaced = line_bytes_per_s == float("inf")
+    pacer = LinePacer(
+        1e18 if unpaced else line_bytes_per_s,
+        1 << 30 if unpaced else max(1, round(line_bytes_per_s * BURST_S)),
+    )
     if args.pty:
-        endpoint: Any = _PtyEndpoint(args.link)
+        endpoint: endpoints.Endpoint = endpoints.PtyEndpoint(pacer, args.link)
     elif args.tcp is not None:
-        endpoint = _TcpEndpoint(args.host, args.tcp)
+        endpoint = endpoints.TcpEndpoint(pacer, args.host, args.tcp)
     else:
-        endpoint = _CanEndpoint(args.can)
+        endpoint = endpoints.CanEndpoint(args.can)
     capture = None
     try:
         if args.capture:
@@ -93,7 +124,19 @@ def main(args: argparse.Namespace) -> int:
     except OSError as exc:
         endpoint.close()
         raise CommandError(f"cannot write {args.capture!r}: {exc.strerror}") from exc
-    baud = bench.firmware.telemetry.baud
+
+    # SIGTERM and SIGHUP end the server as Ctrl-C does (the --link symlink is removed);
+    # a handler can only be installed from the main thread.
+    stop_signal: list[int] = []
+    old_handlers = {}
+    if threading.current_thread() is threading.main_thread():
+        for signum in (signal.SIGTERM, signal.SIGHUP):
+            old_handlers[signum] = signal.signal(signum, lambda n, _f: stop_signal.append(n))
+
+    # Before the address is printed: the compiled kernels are loaded and the first tick is
+    # done, so a program that opens the address at once is answered in time.
+    plant_kernel.warm_up(bench.loop.event_levels)
+    sim.step(1)
     decimation = getattr(sim.fw, "telemetry_decimation", None)
     print(endpoint.address, flush=True)
     print(
@@ -105,13 +148,28 @@ def main(args: argparse.Namespace) -> int:
     )
 
     start_wall_s = time.monotonic()
+    # wall time of simulated tick 0 (moved forward when the simulation slips)
+    origin_wall_s = start_wall_s - sim.tick * dt_s / args.speed
+    max_lag_ticks = None if unpaced else max(1, int(MAX_LAG_S * args.speed / dt_s))
+    slipped_ticks = 0
     try:
-        while end_tick is None or sim.tick < end_tick:
-            data = endpoint.read()
+        while (end_tick is None or sim.tick < end_tick) and not stop_signal:
+            now_s = time.monotonic()
+            data = endpoint.receive(FEED_BYTES - sim.pc_pending_bytes)
+            if endpoint.lost_peer:
+                endpoint.lost_peer = False
+                sim.pc_discard()  # the next client does not wait behind the last one's input
             if data:
                 sim.pc_write(data)
-            # simulate up to the wall clock
-            due_tick = int((time.monotonic() - start_wall_s) * args.speed / dt_s)
+            if max_lag_ticks is None:  # --speed inf: as fast as the simulation goes
+                due_tick = sim.tick + MAX_CATCH_UP_TICKS
+            else:
+                due_tick = int((now_s - origin_wall_s) * args.speed / dt_s)
+            if max_lag_ticks is not None and due_tick - sim.tick > max_lag_ticks:
+                lost = due_tick - sim.tick - max_lag_ticks
+                slipped_ticks += lost
+                origin_wall_s += lost * dt_s / args.speed
+                due_tick -= lost
             if end_tick is not None:
                 due_tick = min(due_tick, end_tick)
             n = min(due_tick - sim.tick, MAX_CATCH_UP_TICKS)
@@ -121,12 +179,15 @@ def main(args: argparse.Namespace) -> int:
                 if out:
                     if capture is not None:
                         capture.write(out)
-                    endpoint.write(out)
-            endpoint.flush()
-            if n < MAX_CATCH_UP_TICKS:
-                next_wall_s = start_wall_s + (sim.tick + 1) * dt_s / args.speed
-                wait_s = max(0.0, min(0.05, next_wall_s - time.monotonic()))
-                select.select(endpoint.fds(), [], [], wait_s)
+                    endpoint.deliver(out, sim.uart_tx.pending == 0)
+            endpoint.service(now_s)
+            if n < MAX_CATCH_UP_TICKS and max_lag_ticks is not None:
+                next_tick_s = origin_wall_s + (sim.tick + 1) * dt_s / args.speed
+                wait_s = next_tick_s - time.monotonic()
+                pace_s = endpoint.wait_s()
+                if pace_s is not None:
+                    wait_s = min(wait_s, pace_s)
+                select.select(endpoint.fds(), [], [], max(0.0, min(0.05, wait_s)))
     except KeyboardInterrupt:
         pass
     finally:
@@ -134,14 +195,27 @@ def main(args: argparse.Namespace) -> int:
         if capture is not None:
             capture.close()
         endpoint.close()
+        for signum, handler in old_handlers.items():
+            signal.signal(signum, handler)
     c = endpoint.counters
     print(
         f"simulated {sim.t_s:.3f} s in {elapsed_wall_s:.3f} s of wall time "
-        f"({sim.t_s / max(elapsed_wall_s, 1e-9):.2f}x); {endpoint.kind}: "
-        f"{c['bytes_from_pc']} bytes in, {c['bytes_to_pc']} out, "
-        f"{c['dropped_bytes']} dropped (no reader)",
+        f"({sim.t_s / max(elapsed_wall_s, 1e-9):.2f}x, {slipped_ticks * dt_s:.3f} s slipped "
+        f"behind the wall clock); {endpoint.kind}: "
+        f"{c['bytes_from_pc']} bytes in, {c['bytes_to_pc']} out; reader too slow: "
+        f"{c['frames_dropped_to_pc']} frames ({c['bytes_dropped_to_pc']} bytes) dropped; "
+        f"writer faster than the line: {c['frames_dropped_from_pc']} frames "
+        f"({c['bytes_dropped_from_pc']} bytes) dropped; {c['bytes_unheard']} bytes with "
+        f"no client; clients {c['clients']}, refused {c['clients_refused']}",
         file=sys.stderr,
     )
+    if endpoint.kind != "can" and not unpaced:
+        print(
+            f"line: peak {pacer.peak_window_bytes} bytes in a {pacer.window_s * 1000:.0f} ms "
+            f"window, capacity {pacer.window_capacity_bytes:.0f} "
+            f"(+{pacer.burst_bytes} bucket)",
+            file=sys.stderr,
+        )
     link = sim.link_stats()
     print("link: " + ", ".join(f"{k} {v}" for k, v in link.items() if v), file=sys.stderr)
     return 0
@@ -165,214 +239,3 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     if args.baud is not None:
         out["telemetry.baud"] = args.baud
     return out
-
-
-def _new_counters() -> dict[str, int]:
-    return {"bytes_from_pc": 0, "bytes_to_pc": 0, "dropped_bytes": 0}
-
-
-class _ByteEndpoint:
-    """A byte stream to one PC program; subclasses provide ``_recv`` and ``_send``."""
-
-    kind = "bytes"
-
-    def __init__(self) -> None:
-        self.counters = _new_counters()
-        self._pending = b""
-
-    def read(self) -> bytes:
-        data = self._recv()
-        self.counters["bytes_from_pc"] += len(data)
-        return data
-
-    def write(self, data: bytes) -> None:
-        self._pending += data
-
-    def flush(self) -> None:
-        if not self._pending:
-            return
-        written = self._send(self._pending)
-        self.counters["bytes_to_pc"] += written
-        rest = self._pending[written:]
-        if len(rest) > MAX_PENDING_BYTES:
-            self.counters["dropped_bytes"] += len(rest) - MAX_PENDING_BYTES
-            rest = rest[-MAX_PENDING_BYTES:]
-        self._pending = rest
-
-    def _recv(self) -> bytes:
-        raise NotImplementedError
-
-    def _send(self, data: bytes) -> int:
-        raise NotImplementedError
-
-
-class _PtyEndpoint(_ByteEndpoint):
-    kind = "pty"
-
-    def __init__(self, link: str | None) -> None:
-        import os
-        import pty
-        import tty
-
-        from serial_protocol.exceptions import CommandError
-
-        super().__init__()
-        self._master, self._slave = pty.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.address = os.ttyname(self._slave)
-        self._link = link
-        if link:
-            try:
-                if os.path.islink(link):
-                    os.unlink(link)
-                os.symlink(self.address, link)
-            except OSError as exc:
-                self.close()
-                raise CommandError(f"cannot create the link {link!r}: {exc.strerror}") from exc
-
-    def fds(self) -> list[int]:
-        return [self._master]
-
-    def _recv(self) -> bytes:
-        import os
-
-        try:
-            return os.read(self._master, 4096)
-        except OSError:  # EAGAIN: nothing to read; EIO: nobody has the pty open
-            return b""
-
-    def _send(self, data: bytes) -> int:
-        import os
-
-        try:
-            return os.write(self._master, data)
-        except OSError:  # EAGAIN: the pty buffer is full (nobody reads)
-            return 0
-
-    def close(self) -> None:
-        import os
-
-        for fd in (self._master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        if self._link and os.path.islink(self._link):
-            os.unlink(self._link)
-
-
-class _TcpEndpoint(_ByteEndpoint):
-    kind = "tcp"
-
-    def __init__(self, host: str, port: int) -> None:
-        import socket
-
-        from serial_protocol.exceptions import CommandError
-
-        super().__init__()
-        try:
-            self._server = socket.create_server((host, port))
-        except OSError as exc:
-            raise CommandError(f"cannot listen on {host}:{port}: {exc.strerror}") from exc
-        self._server.setblocking(False)
-        bound_host, bound_port = self._server.getsockname()[:2]
-        self.address = f"socket://{bound_host}:{bound_port}"
-        self._client: Any = None
-
-    def fds(self) -> list[int]:
-        return [self._server.fileno()] + ([self._client.fileno()] if self._client else [])
-
-    def _accept(self) -> None:
-        if self._client is None:
-            try:
-                self._client, _ = self._server.accept()
-                self._client.setblocking(False)
-                self._pending = b""  # a new client does not get the previous one's backlog
-            except BlockingIOError:
-                pass
-
-    def _drop_client(self) -> None:
-        self._client.close()
-        self._client = None
-
-    def _recv(self) -> bytes:
-        self._accept()
-        if self._client is None:
-            return b""
-        try:
-            data = self._client.recv(4096)
-        except BlockingIOError:
-            return b""
-        except OSError:
-            data = b""
-        if not data:
-            self._drop_client()
-        return data
-
-    def _send(self, data: bytes) -> int:
-        if self._client is None:
-            self.counters["dropped_bytes"] += len(data)
-            self._pending = b""
-            return 0
-        try:
-            return self._client.send(data)
-        except BlockingIOError:
-            return 0
-        except OSError:
-            self._drop_client()
-            return 0
-
-    def close(self) -> None:
-        if self._client is not None:
-            self._drop_client()
-        self._server.close()
-
-
-class _CanEndpoint:
-    """Gateway: board bytes -> messages -> CAN frames; CAN commands -> frames -> board."""
-
-    kind = "can"
-
-    def __init__(self, spec: str) -> None:
-        from serial_protocol.can_link import CanLink
-        from serial_protocol.exceptions import CommandError
-        from serial_protocol.frame import Decoder
-
-        interface, _, channel = spec.removeprefix("can://").partition("/")
-        if not interface or not channel:
-            raise CommandError(f"--can {spec!r}: expected INTERFACE/CHANNEL")
-        self.link = CanLink.open(interface, channel)
-        self.address = f"can://{interface}/{channel}"
-        self.counters = _new_counters()
-        self._decoder = Decoder()
-        self._seq = 0
-
-    def fds(self) -> list[int]:
-        return []
-
-    def read(self) -> bytes:
-        from serial_protocol.frame import frame_raw
-
-        out = b""
-        for msg_type, payload in self.link.poll_raw(0.0):
-            out += frame_raw(msg_type, payload, self._seq)
-            self._seq = (self._seq + 1) & 0xFF
-        self.counters["bytes_from_pc"] += len(out)
-        return out
-
-    def write(self, data: bytes) -> None:
-        from serial_protocol.messages import Malformed
-
-        self.counters["bytes_to_pc"] += len(data)
-        for msg in self._decoder.feed(data):
-            if isinstance(msg, Malformed):
-                self.counters["dropped_bytes"] += 1
-                continue
-            self.link.send(msg)
-
-    def flush(self) -> None:
-        return None
-
-    def close(self) -> None:
-        self.link.close()
