@@ -13,10 +13,12 @@ Seed 001 gives each junction i (between segments i and i+1) a speed V_i, the min
 Then each segment is planned from (V_b, V_e, V_m, l) (:func:`plan_segment`): time-optimally
 by default, or in the seed's seven literal cases with ``optimal=False``. The corner and
 contour caps are computed from ``|u2 - u1| = 2 sin(alpha/2)`` and
-``|u2 + u1| = 2 cos(alpha/2)`` (u the unit directions), accurate at every angle. Because the forward and backward passes bound every junction by its
-neighbours, every segment has ``l >= |V_e^2 - V_b^2| / (2 a)``: the seed's "l < l_i, the
-look-ahead was wrong, stop the machine" cannot happen (the segment planner still checks and
-raises ``ValueError`` if handed such a segment directly).
+``|u2 + u1| = 2 cos(alpha/2)`` (u the unit directions), accurate at every angle.
+
+Because the forward and backward passes bound every junction by its neighbours, every
+segment has ``l >= |V_e^2 - V_b^2| / (2 a)``: the seed's "l < l_i, the look-ahead was wrong,
+stop the machine" cannot happen (the segment planner still checks and raises ``ValueError``
+if handed such a segment directly).
 
 In one dimension (the turntable's multi-waypoint programs) the velocity is one continuous
 number, so a reversal (a 180-degree corner) must pass through zero: the junction speed there

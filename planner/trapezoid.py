@@ -36,70 +36,10 @@ from __future__ import annotations
 import math
 
 from planner._checks import check_finite, check_positive
+from planner._kernel import trapezoid_phases
 from planner.profile import Profile, build_profile
 
-__all__ = ["plan_trapezoid", "plan_stop", "time_optimal_segments"]
-
-
-def time_optimal_segments(
-    x0: float, x1: float, v0: float, v1: float, v_max: float, a_max: float
-) -> tuple[list[tuple[float, float]], bool, int, bool]:
-    """The time-optimal double-integrator move from ``(x0, v0)`` to ``(x1, v1)``.
-
-    The limits are ``|v| <= v_max`` (after an initial brake if ``|v0| > v_max``) and
-    ``|a| <= a_max``; ``|v1| <= v_max`` is required. Used for positions (the trapezoid) and,
-    one order down, for velocities (an acceleration-limited, jerk-limited velocity change).
-
-    Returns:
-        ``(segments, braked, sigma, cruise)``: ``segments`` is a list of ``(dt, a)``;
-        ``braked`` tells whether a brake phase to v_max comes first; ``sigma`` is +1 if the
-        main part accelerates first (peak above both end velocities), -1 if it decelerates
-        first; ``cruise`` tells whether there is a cruise at ``sigma * v_max``.
-    """
-    segments: list[tuple[float, float]] = []
-    braked = False
-    v = v0
-    d = x1 - x0
-    if abs(v0) > v_max:
-        s = 1.0 if v0 > 0.0 else -1.0
-        dt = (abs(v0) - v_max) / a_max
-        segments.append((dt, -s * a_max))
-        v = s * v_max
-        d -= (v0 + v) * 0.5 * dt
-        braked = True
-    # Distance covered by a single ramp from v to v1.
-    d_direct = (v + v1) * abs(v1 - v) / (2.0 * a_max)
-    # At d == d_direct the single ramp is the answer; it belongs to the "accelerate first"
-    # family only if v + v1 >= 0 (otherwise that family's root is the far, slow one).
-    sigma = 1 if d > d_direct or (d == d_direct and v + v1 >= 0.0) else -1
-    # The peak satisfies peak^2 = sigma a d + (v^2 + v1^2)/2 >= m^2, m the end velocity
-    # nearer the peak; clamp only against rounding.
-    m = max(v, v1) if sigma > 0 else min(v, v1)
-    peak_sq = max(sigma * a_max * d + 0.5 * (v * v + v1 * v1), m * m)
-    vp = sigma * math.sqrt(peak_sq)
-    cruise = abs(vp) >= v_max
-    t_cruise = 0.0
-    if cruise:
-        vp = sigma * v_max
-        ramps = sigma * (2.0 * v_max * v_max - v * v - v1 * v1) / (2.0 * a_max)
-        t_cruise = max((d - ramps) / vp, 0.0)
-        t_up = max(sigma * (vp - v), 0.0) / a_max
-        t_down = max(sigma * (vp - v1), 0.0) / a_max
-    else:
-        # |vp| - sigma v without the cancellation of two near-equal speeds:
-        # (peak^2 - v^2) / (|vp| + sigma v), with peak^2 - v^2 = sigma a d + (v1^2 - v^2)/2.
-        rise = sigma * a_max * d + 0.5 * (v1 - v) * (v1 + v)
-        fall = sigma * a_max * d + 0.5 * (v - v1) * (v + v1)
-        abs_vp = abs(vp)
-        sv, sv1 = sigma * v, sigma * v1
-        up = rise / (abs_vp + sv) if sv > 0.0 else abs_vp - sv
-        down = fall / (abs_vp + sv1) if sv1 > 0.0 else abs_vp - sv1
-        t_up = max(up, 0.0) / a_max
-        t_down = max(down, 0.0) / a_max
-    segments.append((t_up, sigma * a_max))
-    segments.append((t_cruise, 0.0))
-    segments.append((t_down, -sigma * a_max))
-    return segments, braked, sigma, t_cruise > 0.0
+__all__ = ["plan_trapezoid", "plan_stop"]
 
 
 def plan_trapezoid(
@@ -110,14 +50,19 @@ def plan_trapezoid(
     a_max: float,
     v0: float = 0.0,
     v1: float = 0.0,
+    d_max: float | None = None,
 ) -> Profile:
     """Plan the fastest move from ``(p0, v0)`` to ``(p1, v1)`` with |v| <= v_max, |a| <= a_max.
 
     Args:
         p0, p1: start and target position (any unit, used consistently).
         v_max: velocity limit, > 0. a_max: acceleration limit, > 0.
-        v0: start velocity, any finite value (|v0| > v_max brakes first).
+        v0: start velocity, any finite value (|v0| > v_max brakes first, at d_max).
         v1: end velocity, |v1| <= v_max.
+        d_max: deceleration limit, > 0 (None: a_max). With it ``|a| <= a_max`` while the
+            speed |v| grows and ``|a| <= d_max`` while it falls, as ODrive's accel_limit and
+            decel_limit; a ramp through zero velocity slows at d_max down to 0 and speeds
+            up at a_max after (two phases). Still time-optimal.
 
     Returns:
         A trapezoid :class:`Profile` whose ``case`` names the shape (see the module
@@ -139,13 +84,17 @@ def plan_trapezoid(
     ):  # the slow path names the bad argument
         check_finite(p0=p0, p1=p1, v0=v0, v1=v1)
         check_positive(v_max=v_max, a_max=a_max)
+    if d_max is None:
+        d_max = a_max
+    elif not (isfinite(d_max) and d_max > 0.0):
+        check_positive(d_max=d_max)
     if abs(v1) > v_max:
         raise ValueError(f"v1 = {v1!r}: |v1| must be <= v_max = {v_max!r}")
     p0, p1, v0, v1 = float(p0), float(p1), float(v0), float(v1)
-    v_max, a_max = float(v_max), float(a_max)
-    segments, braked, sigma, cruise = time_optimal_segments(p0, p1, v0, v1, v_max, a_max)
-    # The last three segments are ramp, cruise, ramp; a brake phase is never empty.
-    if not (braked or segments[-1][0] > 0.0 or segments[-2][0] > 0.0 or segments[-3][0] > 0.0):
+    v_max, a_max, d_max = float(v_max), float(a_max), float(d_max)
+    out, n, sigma, cruise, braked = trapezoid_phases(p0, p1, v0, v1, v_max, a_max, d_max)
+    segments = list(zip(out[0, :n].tolist(), out[1, :n].tolist(), strict=True))
+    if not (braked or any(dt > 0.0 for dt, _ in segments)):
         case = "hold"
     else:
         # The case letter is read in the frame where the start velocity is >= 0 (the seed's
