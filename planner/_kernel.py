@@ -7,9 +7,12 @@ duration of phase ``i``, ``out[1, i]`` its value (an acceleration for the trapez
 for the S-curve). A phase of zero duration may be written; :func:`planner.profile.
 build_profile` drops it.
 
-Everything here is unit-free and pure: arguments in, phases out, no clock, no I/O. The
-compiled functions load from numba's on-disk cache after the first process that compiled
-them (a few seconds, once); :func:`warm_up` loads them ahead of a time-critical loop.
+Everything here is unit-free and pure: arguments in, phases out, no clock, no I/O.
+:func:`segments` and :func:`integrate` are plain Python that numba can compile: the
+trapezoid runs them interpreted (no start-up cost), the S-curve search runs the same source
+compiled. The S-curve kernel loads from numba's on-disk cache after the first process that
+compiled it (about 20 s of CPU once); :func:`warm_up` loads it ahead of a real-time loop
+(0.3-0.9 s).
 """
 
 from __future__ import annotations
@@ -30,44 +33,40 @@ _GRID_TAU1 = 12  # family C: durations of the first of two jerk phases
 _GRID_TAU2 = 12  # family C: roots over the second one
 
 
-@numba.njit(cache=True)
-def _ramp_distance(u: float, w: float, a_acc: float, a_dec: float) -> float:
-    """Displacement of the fastest velocity ramp from u to w: |a| = a_acc while the speed
-    grows, a_dec while it falls (through zero: down to 0 at a_dec, up at a_acc)."""
-    if u * w >= 0.0:
-        lim = a_acc if abs(w) >= abs(u) else a_dec
-        return abs(w - u) * (w + u) / (2.0 * lim)
-    return abs(u) * u / (2.0 * a_dec) + abs(w) * w / (2.0 * a_acc)
-
-
-@numba.njit(cache=True)
-def segments(x0, x1, v0, v1, v_max, a_acc, a_dec, out, n):
+def segments(x0, x1, v0, v1, v_max, a_acc, a_dec):
     """The time-optimal double-integrator move from ``(x0, v0)`` to ``(x1, v1)``.
 
     Limits: ``|v| <= v_max`` (after a brake at ``a_dec`` if ``|v0| > v_max``), ``|a| <=
     a_acc`` while the speed ``|v|`` grows and ``|a| <= a_dec`` while it falls; ``|v1| <=
-    v_max``. Appends ``(dt, a)`` phases to ``out`` from column ``n``: the brake (if any),
-    the ramp to the peak (two phases if it passes through zero with a_acc != a_dec), the
-    cruise (possibly empty), the ramp to v1 (likewise).
+    v_max``.
 
-    Returns ``(n_end, sigma, cruise, braked)``: sigma +1 if the main part accelerates first
+    Returns ``(sigma, cruise, braked, phases)``: sigma +1 if the main part accelerates first
     (peak above both end velocities), -1 if it decelerates first; cruise whether there is a
-    cruise at ``sigma * v_max`` of non-zero duration. Used one order down for velocities
-    (acceleration- and jerk-limited velocity changes, symmetric limits).
+    cruise at ``sigma * v_max`` of non-zero duration; ``phases`` six ``(dt, a)`` pairs,
+    flattened: the brake, the ramp to the peak in two parts (down to zero velocity at a_dec,
+    then up at a_acc), the cruise, the ramp to v1 in two parts; a part that is not there
+    has ``dt = 0`` (returned as values, not written to an array: interpreted, a tuple is
+    the cheap way). Used one order down for velocities (acceleration- and jerk-limited
+    velocity changes, symmetric limits).
     """
     braked = False
     v = v0
     d = x1 - x0
+    t_brake = 0.0
+    a_brake = 0.0
     if abs(v0) > v_max:
         s = 1.0 if v0 > 0.0 else -1.0
-        dt = (abs(v0) - v_max) / a_dec
-        out[0, n] = dt
-        out[1, n] = -s * a_dec
-        n += 1
+        t_brake = (abs(v0) - v_max) / a_dec
+        a_brake = -s * a_dec
         v = s * v_max
-        d -= (v0 + v) * 0.5 * dt
+        d -= (v0 + v) * 0.5 * t_brake
         braked = True
-    d_direct = _ramp_distance(v, v1, a_acc, a_dec)
+    # Displacement of the single fastest ramp from v to v1 (through zero: down to 0 at
+    # a_dec, up at a_acc).
+    if v * v1 >= 0.0:
+        d_direct = abs(v1 - v) * (v1 + v) / (2.0 * (a_acc if abs(v1) >= abs(v) else a_dec))
+    else:
+        d_direct = abs(v) * v / (2.0 * a_dec) + abs(v1) * v1 / (2.0 * a_acc)
     # At d == d_direct the single ramp is the answer; it belongs to the "accelerate first"
     # family only if v + v1 >= 0 (otherwise that family's root is the far, slow one).
     sigma = 1 if d > d_direct or (d == d_direct and v + v1 >= 0.0) else -1
@@ -113,71 +112,29 @@ def segments(x0, x1, v0, v1, v_max, a_acc, a_dec, out, n):
     sg = float(sigma)
     # Ramp up from fv to vp: slowing (dec) while fv < 0, then speeding (acc).
     if fv < 0.0 and acc != dec:
-        t_slow = min(-fv, up) / dec
-        out[0, n] = t_slow
-        out[1, n] = sg * dec
-        out[0, n + 1] = max(up + fv, 0.0) / acc
-        out[1, n + 1] = sg * acc
-        n += 2
+        t_u1 = min(-fv, up) / dec
+        a_u1 = sg * dec
+        t_u2 = max(up + fv, 0.0) / acc
     else:
-        out[0, n] = up / (acc if fv >= 0.0 else dec)
-        out[1, n] = sg * (acc if fv >= 0.0 else dec)
-        n += 1
-    out[0, n] = t_cruise
-    out[1, n] = 0.0
-    n += 1
+        t_u1 = up / (acc if fv >= 0.0 else dec)
+        a_u1 = sg * (acc if fv >= 0.0 else dec)
+        t_u2 = 0.0
     # Ramp down from vp to fv1: slowing (dec) to zero, then speeding the other way (acc).
     if fv1 < 0.0 and acc != dec:
-        out[0, n] = vp / dec
-        out[1, n] = -sg * dec
-        out[0, n + 1] = max(down - vp, 0.0) / acc
-        out[1, n + 1] = -sg * acc
-        n += 2
+        t_d1 = vp / dec
+        a_d1 = -sg * dec
+        t_d2 = max(down - vp, 0.0) / acc
     else:
-        out[0, n] = down / (dec if fv1 >= 0.0 else acc)
-        out[1, n] = -sg * (dec if fv1 >= 0.0 else acc)
-        n += 1
-    return n, sigma, t_cruise > 0.0, braked
+        t_d1 = down / (dec if fv1 >= 0.0 else acc)
+        a_d1 = -sg * (dec if fv1 >= 0.0 else acc)
+        t_d2 = 0.0
+    phases = (
+        t_brake, a_brake, t_u1, a_u1, t_u2, sg * acc, t_cruise, 0.0, t_d1, a_d1, t_d2, -sg * acc
+    )  # fmt: skip
+    return sigma, t_cruise > 0.0, braked, phases
 
 
-@numba.njit(cache=True)
-def trapezoid_phases(x0, x1, v0, v1, v_max, a_acc, a_dec):
-    """:func:`segments` into a fresh array: ``(out, n, sigma, cruise, braked)``."""
-    out = np.zeros((2, 8))
-    n, sigma, cruise, braked = segments(x0, x1, v0, v1, v_max, a_acc, a_dec, out, 0)
-    return out, n, sigma, cruise, braked
-
-
-@numba.njit(cache=True)
-def _pulse(v0, a0, v1, a_lim, j_max, out, n):
-    """Fastest velocity change from ``(v0, a0)`` to ``(v1, 0)`` with ``|a| <= a_lim``
-    (``|a0| > a_lim`` brought back first) and ``|j| <= j_max``: the trapezoid one order
-    down. Appends ``(dt, jerk)`` phases from column ``n``; returns the new ``n``."""
-    n_end, _, _, _ = segments(v0, v1, a0, 0.0, a_lim, j_max, j_max, out, n)
-    return n_end
-
-
-@numba.njit(cache=True)
-def pulse_phases(v0, a0, v1, a_lim, j_max):
-    """:func:`_pulse` into a fresh array: ``(out, n, distance, duration)``."""
-    out = np.zeros((2, 8))
-    n = _pulse(v0, a0, v1, a_lim, j_max, out, 0)
-    dist, dur = _integrate(out, 0, n, v0, a0)
-    return out, n, dist, dur
-
-
-@numba.njit(cache=True)
-def _bound(va, vb, a_acc, a_dec):
-    """The acceleration limit of a pulse from va to vb: a_acc if the speed grows, a_dec if
-    it falls, the smaller one if the velocity passes through zero (it is continuous there,
-    where both apply)."""
-    if va * vb < 0.0:
-        return min(a_acc, a_dec)
-    return a_acc if abs(vb) >= abs(va) else a_dec
-
-
-@numba.njit(cache=True)
-def _integrate(out, n0, n1, v, a):
+def integrate(out, n0, n1, v, a):
     """Distance and duration of phases ``n0..n1`` from ``(v, a)``, exactly as
     ``build_profile`` integrates them (a zero acceleration's rounding residue snapped)."""
     dist = 0.0
@@ -195,6 +152,77 @@ def _integrate(out, n0, n1, v, a):
             a_scale = max(a_scale, abs(a))
             dur += dt
     return dist, dur
+
+
+# The same two functions compiled, for the S-curve search below. Interpreted, they serve
+# plan_trapezoid and the single velocity pulses, which must not wait for a compiled
+# kernel to load (about 0.3-0.9 s the first time in a process: a stall a real-time loop
+# would see as a lost link).
+_segments = numba.njit(cache=True)(segments)
+_integrate = numba.njit(cache=True)(integrate)
+
+
+def phase_list(ph, braked):
+    """The phases of :func:`segments` as a list of ``(dt, value)``: the brake if there is
+    one, then the non-empty parts of each ramp, and the cruise (possibly empty)."""
+    out = [(ph[0], ph[1])] if braked else []
+    out.append((ph[2], ph[3]))
+    if ph[4] > 0.0:
+        out.append((ph[4], ph[5]))
+    out.append((ph[6], 0.0))
+    out.append((ph[8], ph[9]))
+    if ph[10] > 0.0:
+        out.append((ph[10], ph[11]))
+    return out
+
+
+def trapezoid_phases(x0, x1, v0, v1, v_max, a_acc, a_dec):
+    """:func:`segments` as ``(phases, sigma, cruise, braked)``, phases a list of
+    ``(dt, a)``."""
+    sigma, cruise, braked, ph = segments(x0, x1, v0, v1, v_max, a_acc, a_dec)
+    return phase_list(ph, braked), sigma, cruise, braked
+
+
+def pulse_phases(v0, a0, v1, a_lim, j_max):
+    """The velocity pulse (see :func:`_pulse`): ``(phases, distance, duration)``, the phases
+    a list of ``(dt, jerk)``."""
+    _, _, braked, ph = segments(v0, v1, a0, 0.0, a_lim, j_max, j_max)
+    phases = phase_list(ph, braked)
+    out = np.array(phases).T.copy()
+    dist, dur = integrate(out, 0, len(phases), v0, a0)
+    return phases, dist, dur
+
+
+@numba.njit(cache=True)
+def _pulse(v0, a0, v1, a_lim, j_max, out, n):
+    """Fastest velocity change from ``(v0, a0)`` to ``(v1, 0)`` with ``|a| <= a_lim``
+    (``|a0| > a_lim`` brought back first) and ``|j| <= j_max``: the trapezoid one order
+    down. Appends ``(dt, jerk)`` phases from column ``n``; returns the new ``n``."""
+    _, _, braked, ph = _segments(v0, v1, a0, 0.0, a_lim, j_max, j_max)
+    if braked:
+        out[0, n] = ph[0]
+        out[1, n] = ph[1]
+        n += 1
+    for k in range(1, 6):
+        # The second part of a ramp only when there is one (the cruise always: it may
+        # be empty, as in the interpreted list).
+        if k == 2 or k == 5:
+            if not ph[2 * k] > 0.0:
+                continue
+        out[0, n] = ph[2 * k]
+        out[1, n] = ph[2 * k + 1]
+        n += 1
+    return n
+
+
+@numba.njit(cache=True)
+def _bound(va, vb, a_acc, a_dec):
+    """The acceleration limit of a pulse from va to vb: a_acc if the speed grows, a_dec if
+    it falls, the smaller one if the velocity passes through zero (it is continuous there,
+    where both apply)."""
+    if va * vb < 0.0:
+        return min(a_acc, a_dec)
+    return a_acc if abs(vb) >= abs(va) else a_dec
 
 
 @numba.njit(cache=True)
@@ -627,7 +655,6 @@ def scurve_phases(d, v0, a0, vf, v_max, a_acc, a_dec, j_max):
 
 
 def warm_up() -> None:
-    """Load (or compile, the first time on a machine) the kernels: call before timing."""
-    trapezoid_phases(0.0, 1.0, 0.0, 0.0, 1.0, 1.0, 1.0)
-    pulse_phases(0.0, 0.0, 1.0, 1.0, 1.0)
+    """Load (or compile, the first time on a machine) the S-curve kernel: call it before a
+    real-time loop or a timing."""
     scurve_phases(1.0, 0.5, 0.5, 0.0, 1.0, 1.0, 1.0, 1.0)

@@ -58,8 +58,8 @@ def velocity_pulse(
 
     ``|a| <= a_max`` (after bringing ``|a0| > a_max`` back first), ``|j| <= j_max``.
     """
-    out, n, _, _ = pulse_phases(float(v0), float(a0), float(v1), float(a_max), float(j_max))
-    return list(zip(out[0, :n].tolist(), out[1, :n].tolist(), strict=True))
+    segments, _, _ = pulse_phases(float(v0), float(a0), float(v1), float(a_max), float(j_max))
+    return segments
 
 
 def _cruise_of(segments: list[tuple[float, float]], v: float, a: float) -> tuple[float, float]:
@@ -165,8 +165,7 @@ def plan_scurve_stop(
     check_finite(p0=p0, v0=v0, a0=a0)
     check_positive(a_max=a_max, j_max=j_max)
     p0, v0, a0 = float(p0), float(v0), float(a0)
-    out, n, dist, dur = pulse_phases(v0, a0, 0.0, float(a_max), float(j_max))
-    segments = list(zip(out[0, :n].tolist(), out[1, :n].tolist(), strict=True))
+    segments, dist, dur = pulse_phases(v0, a0, 0.0, float(a_max), float(j_max))
     case = "stop" if dur > 0.0 else "hold"
     return build_profile("scurve", case, p0, v0, a0, segments, p0 + dist, 0.0)
 

@@ -92,9 +92,8 @@ def plan_trapezoid(
         raise ValueError(f"v1 = {v1!r}: |v1| must be <= v_max = {v_max!r}")
     p0, p1, v0, v1 = float(p0), float(p1), float(v0), float(v1)
     v_max, a_max, d_max = float(v_max), float(a_max), float(d_max)
-    out, n, sigma, cruise, braked = trapezoid_phases(p0, p1, v0, v1, v_max, a_max, d_max)
-    segments = list(zip(out[0, :n].tolist(), out[1, :n].tolist(), strict=True))
-    if not (braked or any(dt > 0.0 for dt, _ in segments)):
+    segments, sigma, cruise, braked = trapezoid_phases(p0, p1, v0, v1, v_max, a_max, d_max)
+    if not (braked or max(segments)[0] > 0.0):  # max() compares the durations first
         case = "hold"
     else:
         # The case letter is read in the frame where the start velocity is >= 0 (the seed's
