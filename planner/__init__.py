@@ -11,8 +11,10 @@ Unit-free: any consistent units (the firmware uses axis degrees and seconds).
 * :func:`plan_path`, :func:`plan_program`, :class:`LookaheadQueue` - continuous-path
   look-ahead over a polyline, batch and streaming (seed 001).
 * :class:`Profile` - what every planner returns: ``duration``, ``at(t)``, ``phases``.
+* :func:`warm_up` - load the compiled S-curve kernel ahead of a real-time loop.
 """
 
+from planner._kernel import warm_up
 from planner.lookahead import (
     LookaheadQueue,
     PathPlan,
@@ -47,4 +49,5 @@ __all__ = [
     "scurve_from_periods",
     "trapezoid_from_periods",
     "velocity_pulse",
+    "warm_up",
 ]

@@ -87,6 +87,7 @@ def main(args: argparse.Namespace) -> int:
     import threading
     import time
 
+    from planner import warm_up
     from serial_protocol.exceptions import CommandError
     from serial_protocol.pacing import LinePacer
     from serial_protocol.uart import bytes_per_s
@@ -100,6 +101,9 @@ def main(args: argparse.Namespace) -> int:
     sim = Simulation(
         load_bench(args.bench), seed=args.seed, overrides=_overrides(args), keep_log=False
     )
+    # Load the S-curve planner's compiled kernel now, not at the first S-curve Move: a stall
+    # of 0.3-0.9 s in the paced loop below would overflow the link.
+    warm_up()
     bench = sim.bench
     dt_s = sim.dt_s
     end_tick = None if args.duration is None else round(args.duration / dt_s)

@@ -142,3 +142,53 @@ def test_property_replan_at_random_instants_is_continuous(
         t_s += gap
     end = op.profile
     assert op.sample(t_s + end.duration + 1.0) == (end.p1, 0.0, 0.0)
+
+
+@pytest.mark.parametrize(("first", "second"), [("trapezoid", "scurve"), ("scurve", "trapezoid")])
+def test_switching_kind_while_moving_keeps_position_and_velocity(first, second, check):
+    """A moving axis switches trapezoid <-> S-curve at a command: no jump in position or
+    velocity; to the S-curve, no jump in acceleration either (it starts from the
+    trapezoid's acceleration)."""
+    op = OnlinePlanner(first)
+    op.reset(0.0)
+    op.command(0.0, 5000.0, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX)
+    for t_s in (0.5, 1.0, 3.0, 6.0):  # accelerating, accelerating, cruising, braking
+        before = op.sample(t_s)
+        assert op.moving
+        prof = op.command(t_s, -2000.0, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX, kind=second)
+        assert op.kind == second and prof.kind == second
+        after = op.sample(t_s)
+        assert after[:2] == before[:2]
+        if second == "scurve":
+            assert after[2] == before[2]
+            check(prof, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX)
+        else:
+            check(prof, v_max=V_MAX, a_max=A_MAX)
+        assert prof.p1 == -2000.0
+        # Back for the next round.
+        op.command(t_s, 5000.0, v_max=V_MAX, a_max=A_MAX, j_max=J_MAX, kind=first)
+
+
+def test_bad_kind_or_missing_jerk_changes_nothing():
+    op = OnlinePlanner("trapezoid")
+    op.reset(0.0)
+    prof = op.command(0.0, 100.0, v_max=V_MAX, a_max=A_MAX)
+    with pytest.raises(ValueError, match="kind = 'sine'"):
+        op.command(0.1, 0.0, v_max=V_MAX, a_max=A_MAX, kind="sine")
+    with pytest.raises(ValueError, match="j_max = None"):
+        op.command(0.1, 0.0, v_max=V_MAX, a_max=A_MAX, kind="scurve")
+    with pytest.raises(ValueError, match="j_max = None"):
+        op.stop(0.1, a_max=A_MAX, kind="scurve")
+    assert op.kind == "trapezoid" and op.profile is prof
+
+
+def test_deceleration_limit_reaches_the_planner():
+    op = OnlinePlanner("trapezoid")
+    op.reset(0.0)
+    prof = op.command(0.0, 1000.0, v_max=100.0, a_max=50.0, d_max=25.0)
+    assert [value for _, _, value in prof.phases] == [50.0, 0.0, -25.0]
+    op = OnlinePlanner("scurve")
+    op.reset(0.0)
+    prof = op.command(0.0, 1000.0, v_max=100.0, a_max=50.0, d_max=25.0, j_max=J_MAX)
+    _, _, acc = prof.at(np.linspace(0.0, prof.duration, 2001))
+    assert acc.max() == pytest.approx(50.0) and acc.min() == pytest.approx(-25.0)

@@ -143,3 +143,59 @@ def test_property_start_above_v_max_brakes_back_first(
     over_limit = np.nonzero(np.abs(v) > v_max * (1 + 1e-6))[0]
     if over_limit.size:
         assert t[over_limit[-1]] <= t_brake * (1 + 1e-6) + (t[1] - t[0])
+
+
+def test_end_velocity_for_a_queue_segment(check):
+    """A jerk-limited segment that does not stop: ends at (p1, v1, 0)."""
+    for v1 in (30.0, -30.0, V, 0.0):
+        prof = plan_scurve(0.0, 200.0, v_max=V, a_max=A, j_max=J, v0=10.0, v1=v1)
+        assert prof.at(prof.duration) == (200.0, v1, 0.0)
+        check(prof, v_max=V, a_max=A, j_max=J)
+        # Beyond the end it continues at v1 (the next segment takes over from there).
+        assert prof.at(prof.duration + 1.0)[:2] == (200.0 + v1, v1)
+    with pytest.raises(ValueError, match="v1 = 60.0"):
+        plan_scurve(0.0, 1.0, v_max=V, a_max=A, j_max=J, v1=60.0)
+
+
+def test_asymmetric_acceleration_and_deceleration():
+    prof = plan_scurve(0.0, 500.0, v_max=V, a_max=40.0, j_max=J, d_max=20.0)
+    _, v, a = prof.at(np.linspace(0.0, prof.duration, 4001))
+    assert a.max() == pytest.approx(40.0) and a.min() == pytest.approx(-20.0)
+    assert prof.at(prof.duration) == (500.0, 0.0, 0.0)
+    same = plan_scurve(0.0, 500.0, v_max=V, a_max=40.0, j_max=J, d_max=40.0)
+    assert same.phases == plan_scurve(0.0, 500.0, v_max=V, a_max=40.0, j_max=J).phases
+    with pytest.raises(ValueError, match="d_max = 0.0"):
+        plan_scurve(0.0, 1.0, v_max=V, a_max=A, j_max=J, d_max=0.0)
+
+
+@settings(settings.get_profile("planner"))
+@given(
+    dist=st.floats(-1e3, 1e3),
+    v_max=st.floats(0.1, 100.0),
+    a_max=st.floats(0.1, 100.0),
+    d_max=st.floats(0.1, 100.0),
+    j_max=st.floats(0.1, 1000.0),
+    v0_frac=st.floats(-1.0, 1.0),
+    a0_frac=st.floats(-1.0, 1.0),
+    v1_frac=st.floats(-1.0, 1.0),
+)
+def test_property_asymmetric_and_moving_end_valid(
+    dist, v_max, a_max, d_max, j_max, v0_frac, a0_frac, v1_frac, check
+):
+    """Any start within the limits, any end velocity: continuous, within v_max and j_max,
+    |a| <= a_max where the speed grows and <= d_max where it falls (where v passes through
+    zero both), beyond the start's own |a0| never; it ends exactly at (p1, v1, 0)."""
+    v0, v1 = v0_frac * v_max, v1_frac * v_max
+    a0 = a0_frac * min(a_max, d_max, math.sqrt(2 * j_max * max(v_max - abs(v0), 0.0)))
+    prof = plan_scurve(
+        0.0, dist, v_max=v_max, a_max=a_max, j_max=j_max, v0=v0, a0=a0, v1=v1, d_max=d_max
+    )
+    a_top = max(a_max, d_max)
+    check(prof, v_max=v_max, a_max=a_top, j_max=j_max, v_start_max=v_max)
+    t = np.linspace(0.0, prof.duration, 4001)
+    _, v, a = prof.at(t)
+    allowed_up = max(a_max, abs(a0)) * (1 + 1e-9) + 1e-12
+    allowed_down = max(d_max, abs(a0)) * (1 + 1e-9) + 1e-12
+    assert np.all(np.abs(a[a * v > 0.0]) <= allowed_up)
+    assert np.all(np.abs(a[a * v < 0.0]) <= allowed_down)
+    assert prof.at(prof.duration) == (dist, v1, 0.0)

@@ -241,3 +241,69 @@ def test_property_valid_profile(p0, dist, v_max, a_max, v0_frac, v1_frac, check)
     # Rounding of the peak speed may lose up to ~ulp(v^2)/a of distance (and its time).
     slack = 4 * math.ulp(max(v_max, abs(v0)) ** 2) / a_max / max(v_max, abs(v0))
     assert prof.duration >= abs(dist) / max(v_max, abs(v0)) * (1 - 1e-12) - slack
+
+
+def check_asymmetric(prof, *, v_max, a_max, d_max, v_start_max=None):
+    """|a| <= a_max where the speed grows (a v > 0), <= d_max where it falls (a v < 0):
+    judged on dense samples, both sides of every phase boundary."""
+    big_t = prof.duration
+    knots = np.array(prof.t0 + (big_t,))
+    eps = 1e-9 * max(big_t, 1e-300)
+    ts = np.concatenate([np.linspace(0.0, big_t, 4001), knots - eps, knots + eps])
+    ts = np.clip(ts, 0.0, np.nextafter(big_t, 0.0))
+    _, v, a = prof.at(ts)
+    speeding = a * v > 0.0
+    assert np.all(np.abs(a[speeding]) <= a_max * (1 + 1e-9))
+    assert np.all(np.abs(a[a * v < 0.0]) <= d_max * (1 + 1e-9))
+    v_lim = max(v_max, abs(prof.v0) if v_start_max is None else v_start_max)
+    assert np.all(np.abs(v) <= v_lim * (1 + 1e-9))
+    assert prof.at(big_t) == (prof.p1, prof.v1, 0.0)
+
+
+def test_asymmetric_limits_through_zero_velocity(check):
+    # From -2 towards +10: slow down at d_max to 0, speed up at a_max, brake at d_max.
+    prof = plan_trapezoid(0.0, 10.0, v_max=3.0, a_max=1.0, v0=-2.0, d_max=2.0)
+    assert [value for _, _, value in prof.phases] == [2.0, 1.0, 0.0, -2.0]
+    assert prof.phases[0][1] == pytest.approx(1.0)  # 2 / d_max: at rest after 1 s
+    check_asymmetric(prof, v_max=3.0, a_max=1.0, d_max=2.0)
+    # Symmetric limits give back the symmetric plan, bit for bit.
+    same = plan_trapezoid(0.0, 10.0, v_max=3.0, a_max=1.0, v0=-2.0, d_max=1.0)
+    assert same.phases == plan_trapezoid(0.0, 10.0, v_max=3.0, a_max=1.0, v0=-2.0).phases
+
+
+def test_start_above_v_max_brakes_at_d_max():
+    prof = plan_trapezoid(0.0, 1000.0, v_max=10.0, a_max=1.0, v0=20.0, d_max=5.0)
+    assert prof.case.startswith("brake+")
+    assert prof.phases[0][2] == -5.0 and prof.phases[0][1] == pytest.approx(2.0)
+    check_asymmetric(prof, v_max=10.0, a_max=1.0, d_max=5.0, v_start_max=20.0)
+
+
+@pytest.mark.parametrize("name", ["d_max"])
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.inf, math.nan])
+def test_bad_deceleration_limit(name, bad):
+    with pytest.raises(ValueError, match=rf"^{name} = {bad!r}"):
+        plan_trapezoid(0.0, 1.0, v_max=1.0, a_max=1.0, d_max=bad)
+
+
+@settings(settings.get_profile("planner"))
+@given(
+    dist=st.floats(-1e3, 1e3),
+    v_max=st.floats(0.1, 100.0),
+    a_max=st.floats(0.1, 100.0),
+    d_max=st.floats(0.1, 100.0),
+    v0_frac=st.floats(-2.0, 2.0),
+    v1_frac=st.floats(-1.0, 1.0),
+)
+def test_property_asymmetric_valid_and_between_the_symmetric_plans(
+    dist, v_max, a_max, d_max, v0_frac, v1_frac
+):
+    """Any start and end (reversals included): within the asymmetric limits, and never
+    slower than with both limits at min(a_max, d_max) nor faster than with both at the max
+    (those two plans are time-optimal, tested against ruckig)."""
+    v0, v1 = v0_frac * v_max, v1_frac * v_max
+    kw = {"v_max": v_max, "v0": v0, "v1": v1}
+    prof = plan_trapezoid(0.0, dist, a_max=a_max, d_max=d_max, **kw)
+    check_asymmetric(prof, v_max=v_max, a_max=a_max, d_max=d_max, v_start_max=abs(v0))
+    slow = plan_trapezoid(0.0, dist, a_max=min(a_max, d_max), **kw).duration
+    fast = plan_trapezoid(0.0, dist, a_max=max(a_max, d_max), **kw).duration
+    assert fast * (1 - 1e-9) <= prof.duration <= slow * (1 + 1e-9)
