@@ -8,35 +8,39 @@ and ``s_07 = s_06 + v_06 T_7 - J T_5 T_7^2 / 2 + J T_7^3 / 6`` (printed
 ``s_06 + v_06 T_5 - J T_7^3 / 2``, which does not end at L); with these readings the
 per-phase formulas (3)-(5) agree with this module (tests/planner/test_sampling.py) and
 reproduce the paper's Table 2. Here the same shape is planned time-optimally for given limits
-``|v| <= v_max``, ``|a| <= a_max``, ``|j| <= j_max`` from a start state ``(p0, v0, a0)`` to
-rest at ``p1``:
+``|v| <= v_max``, ``|a| <= a_max``, ``|j| <= j_max`` from any start state ``(p0, v0, a0)`` to
+``(p1, v1, 0)`` (``v1 != 0``: a jerk-limited segment of a queue that does not stop there):
 
-* the move is a *velocity pulse* from ``(v0, a0)`` to a peak velocity ``vp`` with zero
-  acceleration, a cruise at ``vp`` (only if ``|vp| == v_max``), and a second pulse from
-  ``(vp, 0)`` to ``(0, 0)``. A pulse is the time-optimal acceleration-limited,
-  jerk-limited velocity change: the trapezoid of :mod:`planner.trapezoid` one order down
-  (velocity in place of position, acceleration in place of velocity, jerk in place of
-  acceleration). It has a constant-acceleration phase only if the change is large enough,
-  so the degenerate shapes (no constant acceleration, no cruise, very short moves) come
-  out by themselves; phases of zero length are dropped.
-* ``vp`` solves ``distance(vp) = p1 - p0``. With ``a0 == 0`` and ``|v0| <= v_max`` the
-  distance is monotonic on the branch that contains the optimum (``vp >= max(v0, 0)`` if the
-  target lies beyond the stopping point, ``vp <= min(v0, 0)`` otherwise), and a safeguarded
-  Newton iteration finds it to rounding. Otherwise (``a0 != 0`` or ``|v0| > v_max``) all
-  roots on ``[-v_max, v_max]`` are bracketed on a grid, together with a second family that
-  starts with a phase of jerk +-j_max (the acceleration dips or grows first) followed by a
-  single pulse to rest, and the fastest candidate that keeps the speed within v_max (or
-  within what the start state makes unavoidable) is taken. This is a valid profile (limits,
-  continuity, exact end) but not proven time-optimal; on random starts whose speed can stay
-  within v_max its duration agrees with ruckig's to 1e-9 (tested to 1e-6 on 600 states), and
-  the benchmark reports the ratio.
+* A *velocity pulse* is the time-optimal acceleration-limited, jerk-limited velocity change:
+  the trapezoid of :mod:`planner.trapezoid` one order down (velocity in place of position,
+  acceleration in place of velocity, jerk in place of acceleration), the same code. It has a
+  constant-acceleration phase only if the change is large enough, so the degenerate shapes
+  (no constant acceleration, no cruise, very short moves) come out by themselves; phases of
+  zero length are dropped.
+* The candidates (all in ``planner._kernel``, compiled with numba): family A, a pulse from
+  ``(v0, a0)`` to a peak velocity ``vp`` with zero acceleration, a cruise at ``vp`` (only if
+  ``|vp| == v_max``) and a pulse from ``(vp, 0)`` to ``(v1, 0)``, with ``vp`` every root of
+  ``distance(vp) = p1 - p0`` bracketed on a grid of ``[-v_max, v_max]`` (plus 0, v0, v1 and
+  the velocity where a0 runs out) and refined by Illinois regula falsi; family B, a first
+  phase of jerk +-j_max (the acceleration dips or grows first), then one pulse to v1; family
+  C (for starts beyond the limits), two opposite jerk phases, then one pulse; and for those
+  starts also ruckig's brake pre-profile followed by the fastest profile from where it ends.
+  The fastest candidate that passes the filter below is taken. Family A from a0 = 0 is the
+  classic S-curve; the search is not a proof of optimality, so ruckig is the oracle in the
+  tests: durations agree to 1e-6 (in practice to ~1e-12) on thousands of random states with
+  a0 = 0 and a0 != 0, v1 = 0 and v1 != 0, and the plan is never slower than ruckig's.
 * A start above v_max (a replan that lowered it) or one whose acceleration makes an excess
   unavoidable may exceed v_max only while braking back: never faster than the start's
   unavoidable excess, and within v_max for good no later than the fastest settled brake to
-  v_max. For such starts a third family is searched too (two opposite jerk phases, then one
-  pulse to rest: the shape of ruckig's brake pre-profile). ruckig's brake is not
-  time-optimal; on 3,000 random such starts this planner was never slower than ruckig (to
-  1e-6), equal in 87 % and faster in 13 %. These plans cost a few milliseconds.
+  v_max. ruckig's brake pre-profile is not time-optimal, so here the plan is often faster.
+* ``d_max`` (a deceleration limit, as ODrive's): ``|a| <= a_max`` while the speed grows,
+  ``|a| <= d_max`` while it falls. Each pulse takes the limit of what it does; a pulse that
+  reverses the direction keeps the smaller limit throughout, because the acceleration is
+  continuous through v = 0 where both apply (valid; not time-optimal for such pulses: the
+  time-optimal pulse would change its plateau at v = 0).
+* Cost: a plan is one call of the compiled search, median ~15 us and at most ~70 us on the
+  2-core development machine (``benchmarks/bench_planner.py``), inside a 2 ms tick. The
+  kernel loads from numba's cache once per process (:func:`planner.warm_up`).
 
 """
 

@@ -297,13 +297,16 @@ def test_bad_deceleration_limit(name, bad):
 def test_property_asymmetric_valid_and_between_the_symmetric_plans(
     dist, v_max, a_max, d_max, v0_frac, v1_frac
 ):
-    """Any start and end (reversals included): within the asymmetric limits, and never
-    slower than with both limits at min(a_max, d_max) nor faster than with both at the max
-    (those two plans are time-optimal, tested against ruckig)."""
+    """Any start and end (reversals included): within the asymmetric limits; from within
+    v_max never slower than with both limits at min(a_max, d_max) nor faster than with both
+    at the max (those two plans are time-optimal, tested against ruckig). From above v_max
+    the brake back to v_max is at full d_max by definition (back within the limit as soon
+    as possible), which a gentler brake could beat on time: no bound there."""
     v0, v1 = v0_frac * v_max, v1_frac * v_max
     kw = {"v_max": v_max, "v0": v0, "v1": v1}
     prof = plan_trapezoid(0.0, dist, a_max=a_max, d_max=d_max, **kw)
     check_asymmetric(prof, v_max=v_max, a_max=a_max, d_max=d_max, v_start_max=abs(v0))
     slow = plan_trapezoid(0.0, dist, a_max=min(a_max, d_max), **kw).duration
     fast = plan_trapezoid(0.0, dist, a_max=max(a_max, d_max), **kw).duration
-    assert fast * (1 - 1e-9) <= prof.duration <= slow * (1 + 1e-9)
+    if abs(v0) <= v_max:
+        assert fast * (1 - 1e-9) <= prof.duration <= slow * (1 + 1e-9)
