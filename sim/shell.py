@@ -16,6 +16,7 @@ with the monitor's scripted options), the rendering of replies in :func:`describ
 
 from __future__ import annotations
 
+import asyncio
 import math
 import shlex
 import threading
@@ -380,6 +381,8 @@ class MonitorShell:
         input, output: prompt_toolkit ``Input``/``Output`` (tests pass a pipe and a
             ``DummyOutput``); default the terminal.
         poll_s: how long the receiver thread holds the link per turn (wall seconds).
+        on_idle: called every ``idle_s`` in the main thread while the prompt waits (the live
+            plot's redraw: a GUI must be driven from the main thread).
     """
 
     def __init__(
@@ -392,6 +395,8 @@ class MonitorShell:
         input: Any = None,  # noqa: A002 - prompt_toolkit's name
         output: Any = None,
         poll_s: float = 0.02,
+        on_idle: Callable[[], None] | None = None,
+        idle_s: float = 0.02,
     ) -> None:
         self.client = client
         self._say = say
@@ -405,6 +410,8 @@ class MonitorShell:
         self._input = input
         self._output = output
         self.session: Any = None  # the PromptSession while run() runs
+        self._on_idle = on_idle
+        self._idle_s = idle_s
 
     def say(self, text: str) -> None:
         if self._say is not None:
@@ -498,18 +505,35 @@ class MonitorShell:
         try:
             with patch_stdout(raw=True):
                 self.say("type 'help' for the commands, Tab to complete, 'quit' to end")
-                while True:
-                    try:
-                        line = session.prompt("turntable> ")
-                    except KeyboardInterrupt:
-                        continue  # Ctrl-C clears the line, as in a shell
-                    except EOFError:
-                        return
-                    if not self.execute(line):
-                        return
+                asyncio.run(self._prompt_loop(session))
         finally:
             self._stop.set()
             receiver.join(timeout=2.0)
+
+    async def _prompt_loop(self, session: Any) -> None:
+        idler = asyncio.create_task(self._idle()) if self._on_idle is not None else None
+        try:
+            while True:
+                try:
+                    line = await session.prompt_async("turntable> ")
+                except KeyboardInterrupt:
+                    continue  # Ctrl-C clears the line, as in a shell
+                except EOFError:
+                    return
+                if not self.execute(line):
+                    return
+        finally:
+            if idler is not None:
+                idler.cancel()
+
+    async def _idle(self) -> None:
+        while True:
+            try:
+                self._on_idle()  # type: ignore[misc]
+            except Exception as exc:  # a broken plot window must not end the session
+                self.say(f"live plot stopped: {exc}")
+                return
+            await asyncio.sleep(self._idle_s)
 
     def run_lines(self, stream: Any) -> None:
         """Read commands from a pipe or file (no terminal): one per line, receiving
@@ -527,12 +551,14 @@ class MonitorShell:
                 ready, _, _ = select.select([fd], [], [], 0.0)
                 if not ready:
                     try:
-                        self.client.collect(0.05)
+                        self.client.collect(0.05 if self._on_idle is None else 0.01)
                     except LinkError as exc:
                         self.link_error = str(exc)
                         self.say(f"link error: {exc}")
                         return
                     continue
+            if self._on_idle is not None:
+                self._on_idle()
             raw = stream.readline()
             if not raw:
                 return  # end of input

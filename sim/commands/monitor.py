@@ -73,6 +73,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         ".blf, python-can's writers)",
     )
     parser.add_argument("--interactive", action="store_true", help="read commands from stdin")
+    parser.add_argument(
+        "--plot",
+        action="store_true",
+        help="live plot: planned and measured velocity and position, current (a window)",
+    )
+    parser.add_argument(
+        "--plot-window", type=float, default=10.0, metavar="S", help="rolling window (10 s)"
+    )
+    parser.add_argument(
+        "--plot-fps", type=float, default=25.0, metavar="FPS", help="redraws per second (25)"
+    )
+    parser.add_argument(
+        "--plot-save",
+        metavar="FILE",
+        help="save the live plot's last frame to FILE (.png/.svg/.pdf; works without a display)",
+    )
     parser.add_argument("--ack-timeout", type=float, default=0.1, help="seconds (0.1)")
     parser.add_argument("--retries", type=int, default=3, help="retries per command (3)")
     parser.add_argument("--quiet", action="store_true", help="no live status line")
@@ -96,6 +112,7 @@ def main(args: argparse.Namespace) -> int:
         raise CommandError(
             f"--ack-timeout {args.ack_timeout!r} must be > 0 and --retries {args.retries!r} >= 0"
         )
+    live = _live_plot(args)
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))
@@ -119,6 +136,8 @@ def main(args: argparse.Namespace) -> int:
             if isinstance(msg, Telemetry):
                 if writer is not None:
                     writer.write(msg)
+                if live is not None:
+                    live.plot.buffer.append(msg)
                 status.show(msg)
             elif isinstance(msg, FaultReport | Malformed):
                 status.say(f"<- {describe(msg)}")
@@ -130,6 +149,8 @@ def main(args: argparse.Namespace) -> int:
             raise CommandError(f"no board answers on {args.url}: {exc}") from exc
         if writer is not None and hello.tick_hz > 0:
             writer.tick_hz = float(hello.tick_hz)
+        if live is not None and hello.tick_hz > 0:
+            live.plot.buffer.tick_hz = float(hello.tick_hz)
         status.say(
             f"connected to {args.url}: protocol {hello.protocol_version}, firmware "
             f"{hello.fw_major}.{hello.fw_minor}.{hello.fw_patch}, {hello.tick_hz} Hz"
@@ -146,10 +167,11 @@ def main(args: argparse.Namespace) -> int:
         try:
             for text in _scripted(args):
                 run(text, parse_command(client, text))
+            idle = live.tick if live is not None else None
             if args.interactive:
-                _interactive(client, status, args)
+                _interactive(client, status, args, idle)
             else:
-                _timed(client, args, run)
+                _timed(client, args, run, live)
         except LinkTimeout as exc:
             status.say(f"link timeout: {exc}")
             _report(client, link, writer, args)
@@ -157,7 +179,48 @@ def main(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             status.say("interrupted")
         _report(client, link, writer, args)
+        if live is not None and args.plot_save:
+            live.plot.save(args.plot_save)
+            print(
+                f"wrote {args.plot_save} (live plot: {live.plot.frames} frames drawn, "
+                f"{live.plot.buffer.received} telemetry frames plotted)"
+            )
     return 0
+
+
+def _live_plot(args: argparse.Namespace) -> Any:
+    """The live plot the options ask for (None without --plot/--plot-save)."""
+    import math
+
+    from serial_protocol.exceptions import CommandError
+
+    if not (args.plot or args.plot_save):
+        return None
+    if not (math.isfinite(args.plot_window) and 0.1 <= args.plot_window <= 3600.0):
+        raise CommandError(f"--plot-window {args.plot_window!r}: must be 0.1 to 3600 s")
+    if not (math.isfinite(args.plot_fps) and 0.5 <= args.plot_fps <= 120.0):
+        raise CommandError(f"--plot-fps {args.plot_fps!r}: must be 0.5 to 120")
+    if args.plot_save:
+        from pathlib import Path
+
+        save = Path(args.plot_save)
+        if save.suffix.lower() not in (".png", ".svg", ".pdf"):
+            raise CommandError(f"--plot-save {args.plot_save!r}: must end in .png, .svg or .pdf")
+        if save.is_dir() or not save.parent.is_dir():
+            raise CommandError(f"--plot-save {args.plot_save!r}: not a file in an existing folder")
+    import matplotlib
+
+    from sim.liveplot import LiveBuffer, LiveWindow, has_display
+
+    show = args.plot and has_display()
+    if args.plot and not show and not args.plot_save:
+        raise CommandError(
+            f"--plot: matplotlib's backend {matplotlib.get_backend()!r} opens no window (no "
+            "display?); set MPLBACKEND (TkAgg, QtAgg) or use --plot-save FILE"
+        )
+    # room for the window at up to 1 kHz of telemetry
+    buffer = LiveBuffer(max(2, int(args.plot_window * 1000.0) + 1))
+    return LiveWindow(buffer, args.plot_window, args.plot_fps, show=show, title=args.url)
 
 
 def parse_command(client: Any, text: str) -> Any:
@@ -190,7 +253,7 @@ def _move_text(args: argparse.Namespace, target_deg: float) -> str:
     return f"move {target_deg!r} {args.v_max!r} {args.a_max!r} {args.j_max!r} {args.profile}"
 
 
-def _timed(client: Any, args: argparse.Namespace, run: Any) -> None:
+def _timed(client: Any, args: argparse.Namespace, run: Any, live: Any = None) -> None:
     """Listen for ``--duration`` seconds, sending the timed interrupts and stop."""
     import time
 
@@ -207,10 +270,14 @@ def _timed(client: Any, args: argparse.Namespace, run: Any) -> None:
         if now_wall_s >= end_wall_s:
             return
         next_s = min(end_wall_s, start_wall_s + events[0][0] if events else end_wall_s)
-        client.collect(min(0.05, max(0.0, next_s - now_wall_s)))
+        # with a live plot, receive until the next frame is due, then draw it
+        turn_s = 0.05 if live is None else min(0.05, max(0.002, live.due_in_s()))
+        client.collect(min(turn_s, max(0.0, next_s - now_wall_s)))
+        if live is not None:
+            live.tick()
 
 
-def _interactive(client: Any, status: Any, args: argparse.Namespace) -> None:
+def _interactive(client: Any, status: Any, args: argparse.Namespace, idle: Any = None) -> None:
     """The prompt_toolkit shell on a terminal; plain lines from a pipe or a file."""
     import os
 
@@ -221,9 +288,12 @@ def _interactive(client: Any, status: Any, args: argparse.Namespace) -> None:
         # The toolbar shows the status; a line drawn on stderr would tear the prompt.
         status.enabled = False
         history = os.environ.get("TURNTABLE_SIM_HISTORY", "~/.turntable_sim_history")
-        MonitorShell(client, latest=latest, history_path=os.path.expanduser(history)).run()
+        shell = MonitorShell(
+            client, latest=latest, history_path=os.path.expanduser(history), on_idle=idle
+        )
+        shell.run()
     else:
-        MonitorShell(client, say=status.say, latest=latest).run_lines(sys.stdin)
+        MonitorShell(client, say=status.say, latest=latest, on_idle=idle).run_lines(sys.stdin)
 
 
 def _report(client: Any, link: Any, writer: Any, args: argparse.Namespace) -> None:
