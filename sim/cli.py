@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("sim.commands.serve", "run the simulated bench in real time behind a pty"),
     "tune": ("sim.commands.tune", "tune the three loops' gains offline; writes a tuned TOML"),
     "plot": ("sim.commands.plot", "plot any log.csv, telemetry CSV, capture or CAN log"),
+    "replay": ("sim.commands.replay", "play a capture or CAN log back at its recorded pace"),
 }
 
 

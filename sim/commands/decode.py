@@ -16,7 +16,11 @@ CAN_LOG_SUFFIXES = (".asc", ".blf", ".trc")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", help="raw bytes as captured from the line ('-' for stdin)")
+    parser.add_argument(
+        "file",
+        help="bytes as captured from the line, raw or timestamped (monitor --capture); "
+        "'-' for stdin",
+    )
     parser.add_argument(
         "-o",
         "--csv",
@@ -47,6 +51,7 @@ def main(args: argparse.Namespace) -> int:
     from serial_protocol.frame import Decoder
     from serial_protocol.messages import Malformed, Telemetry
     from serial_protocol.telemetry_csv import TelemetryCsvWriter
+    from sim.capture import read_chunks
 
     csv_path = args.csv if args.csv is not None else f"{args.file}.csv"
     if args.file == "-" and args.csv is None:
@@ -92,7 +97,8 @@ def main(args: argparse.Namespace) -> int:
         if is_can_log:
             reassembler = _decode_can_log(args.file, args.can_base_id, handle)
         else:
-            while chunk := source.read(CHUNK_BYTES):
+            # a raw capture, or a timestamped one (monitor --capture): the bytes either way
+            for _, chunk in read_chunks(source):
                 total_bytes += len(chunk)
                 handle(decoder.feed(chunk))
             handle(decoder.flush())

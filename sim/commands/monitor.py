@@ -57,6 +57,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar=("V_MAX", "A_MAX", "CURRENT_A", "FOLLOW_DEG"),
         help="set the limits",
     )
+    parser.add_argument(
+        "--gains-from",
+        metavar="TOML",
+        help="send the three loops' gains of this bench TOML (e.g. tune's *_tuned.toml)",
+    )
     parser.add_argument("--clear-fault", action="store_true", help="clear a latched fault")
     enable = parser.add_mutually_exclusive_group()
     enable.add_argument("--enable", action="store_true", help="enable the bridge")
@@ -69,8 +74,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--capture",
         metavar="FILE",
-        help="record the raw received bytes (serial), or every CAN frame (can://; .asc or "
-        ".blf, python-can's writers)",
+        help="record the received bytes with their arrival times (serial; sim/capture.py, "
+        "read by decode, plot and replay), or every CAN frame (can://; .asc or .blf, "
+        "python-can's writers)",
     )
     parser.add_argument("--interactive", action="store_true", help="read commands from stdin")
     parser.add_argument(
@@ -113,6 +119,8 @@ def main(args: argparse.Namespace) -> int:
             f"--ack-timeout {args.ack_timeout!r} must be > 0 and --retries {args.retries!r} >= 0"
         )
     live = _live_plot(args)
+    # checked before connecting: a bad --gains-from sends nothing
+    script = _scripted(args)
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))
@@ -124,7 +132,12 @@ def main(args: argparse.Namespace) -> int:
         else:
             from serial_protocol.transport import SerialLink
 
-            capture = stack.enter_context(_open(args.capture, "wb")) if args.capture else None
+            capture = None
+            if args.capture:
+                from sim.capture import TimestampedCapture
+
+                # each chunk with its arrival time, for replay at the recorded pace
+                capture = TimestampedCapture(stack.enter_context(_open(args.capture, "wb")))
             link = stack.enter_context(SerialLink.open(args.url, args.baud, capture=capture))
         writer = None
         if args.csv:
@@ -165,7 +178,7 @@ def main(args: argparse.Namespace) -> int:
             status.say(f"-> {label}: {describe(parsed(), parsed.fields)}")
 
         try:
-            for text in _scripted(args):
+            for text in script:
                 run(text, parse_command(client, text))
             idle = live.tick if live is not None else None
             if args.interactive:
@@ -240,6 +253,8 @@ def _scripted(args: argparse.Namespace) -> list[str]:
         out.append("disable")
     if args.limits:
         out.append("limits " + " ".join(repr(v) for v in args.limits))
+    if args.gains_from:
+        out += gains_commands(args.gains_from)
     for loop, kp, ki, kd in args.gains:
         out.append(f"gains {loop} {kp} {ki} {kd}")
     if args.telemetry is not None:
@@ -247,6 +262,27 @@ def _scripted(args: argparse.Namespace) -> list[str]:
     if args.move is not None:
         out.append(_move_text(args, args.move))
     return out
+
+
+def gains_commands(path: str) -> list[str]:
+    """The ``gains`` lines that put the loop gains of bench TOML ``path`` on a board
+    (current V/A and V/(A s), velocity A/(°/s) and A/°, position 1/s: the config's units,
+    which are the firmware's)."""
+    from serial_protocol.exceptions import ConfigError
+    from sim.config import load_bench
+    from sim.tuning.gains import GainSet
+
+    try:
+        g = GainSet.from_bench(load_bench(path))
+    except ValueError as exc:  # ConfigError names the file already
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"--gains-from {path!r}: {exc}") from None
+    return [
+        f"gains current {g.kp_i_v_per_a!r} {g.ki_i_v_per_as!r} 0",
+        f"gains velocity {g.kp_v_a_per_dps!r} {g.ki_v_a_per_deg!r} 0",
+        f"gains position {g.kp_p_per_s!r} 0 0",
+    ]
 
 
 def _move_text(args: argparse.Namespace, target_deg: float) -> str:

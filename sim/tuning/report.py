@@ -1,13 +1,14 @@
 """What ``turntable-sim tune`` writes: the tuned TOML (a copy of the input with the five
-gains replaced, comments kept) and the report (Markdown: cost terms before and after,
-margins, the stages of the search, the robustness worst cases)."""
+gains replaced, written with tomlkit so that comments and layout are kept) and the report
+(Markdown: cost terms before and after, margins, the stages of the search, the robustness
+worst cases)."""
 
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from sim.tuning.cost import TERMS
 from sim.tuning.gains import GAIN_FIELDS, GainSet
@@ -23,33 +24,37 @@ __all__ = [
 
 
 def tuned_toml_text(source_text: str, gains: GainSet, note: str) -> str:
-    """``source_text`` with the gains of ``gains`` written into their tables.
+    """``source_text`` with the gains of ``gains`` written into their tables (tomlkit: every
+    other line, comment and blank of the input is kept as it was).
 
-    A key already present keeps its line (value replaced, comment replaced by ``note``); a
-    missing key is added under its table header; a missing table is appended.
+    A key already present keeps its place and its comment's column; its comment becomes
+    ``note``. A missing key is added at the end of its table, a missing table at the end.
+    Values are written with 6 significant digits.
     """
-    lines = source_text.splitlines()
+    import tomlkit
+
+    try:
+        doc = tomlkit.parse(source_text)
+    except tomlkit.exceptions.ParseError as exc:
+        raise ValueError(f"the config is not valid TOML: {exc}") from None
     for name, dotted in GAIN_FIELDS.items():
-        table, _, key = dotted.rpartition(".")
-        value = f"{getattr(gains, name):.6g}"
-        header = re.compile(rf"^\s*\[\s*{re.escape(table)}\s*\]\s*(#.*)?$")
-        start = next((k for k, line in enumerate(lines) if header.match(line)), None)
-        if start is None:
-            lines += ["", f"[{table}]", f"{key} = {value}  # {note}"]
-            continue
-        end = next(
-            (k for k in range(start + 1, len(lines)) if re.match(r"^\s*\[", lines[k])),
-            len(lines),
-        )
-        key_re = re.compile(rf"^(\s*{re.escape(key)}\s*=\s*)([^#]*?)(\s*#.*)?$")
-        for k in range(start + 1, end):
-            if key_re.match(lines[k]):
-                m = key_re.match(lines[k])
-                lines[k] = f"{m.group(1)}{value}  # {note}"
-                break
+        table_path, _, key = dotted.rpartition(".")
+        table: Any = doc
+        for part in table_path.split("."):
+            if part not in table:
+                table[part] = tomlkit.table(is_super_table=part != table_path.split(".")[-1])
+            table = table[part]
+        new = tomlkit.item(float(f"{getattr(gains, name):.6g}"))
+        new.comment(note)
+        if key in table:
+            old = table.item(key)
+            # keep the comment where it was (the config aligns its comments in a column)
+            width = len(old.as_string()) + len(old.trivia.comment_ws)
+            new.trivia.comment_ws = " " * max(2, width - len(new.as_string()))
         else:
-            lines.insert(start + 1, f"{key} = {value}  # {note}")
-    return "\n".join(lines) + "\n"
+            new.trivia.comment_ws = "  "
+        table[key] = new
+    return tomlkit.dumps(doc)
 
 
 def write_tuned_toml(source: Path, out: Path, gains: GainSet, note: str) -> Path:

@@ -103,7 +103,16 @@ def test_monitor_sends_commands_records_csv_and_reports(tmp_path, capsys):
     rows = list(csv.DictReader(out_csv.open()))
     assert len(rows) > 10
     assert {r["state"] for r in rows} == {"MOVING"}
-    assert Decoder().feed(capture.read_bytes())  # the raw capture decodes
+    from sim.capture import read_chunks
+
+    with open(capture, "rb") as f:
+        chunks = list(read_chunks(f))
+    times = [t for t, _ in chunks]
+    assert times == sorted(times) and 0.0 <= times[0] and times[-1] < 30.0  # arrival times
+    decoder = Decoder()
+    decoded = [m for _, data in chunks for m in decoder.feed(data)]
+    assert sum(isinstance(m, Telemetry) for m in decoded) >= len(rows)  # all of it
+    assert decoder.stats().crc_errors == 0 and decoder.stats().bytes_dropped == 0
     report = capsys.readouterr().out
     assert "commands 5: acks 4, nacks 0, retries 0, timeouts 0" in report
     assert "crc errors 0" in report and f"wrote {len(rows)} telemetry rows" in report
@@ -291,3 +300,40 @@ def test_interactive_session_from_stdin():
     assert names == ["Hello", "GetStatus", "Move", "SetGains"]
     assert board.received[2] == Move(board.received[2].cmd_id, 45.0, 100.0, 200.0)
     assert "commands 4: acks 3" in done.stdout
+
+
+def test_gains_from_a_tuned_toml_reach_the_board_in_one_step(tmp_path, capsys, monkeypatch):
+    import io
+    from pathlib import Path
+
+    from sim.tuning.gains import GainSet
+    from sim.tuning.report import write_tuned_toml
+
+    bench = Path(__file__).resolve().parents[3] / "bench_configs" / "paper_bench.toml"
+    tuned = GainSet(0.1, 150.0, 0.06, 1.5, 12.0)
+    toml = write_tuned_toml(bench, tmp_path / "tuned.toml", tuned, "tuned (test)")
+    # the monitor reads commands from a pipe after the scripted ones: read the gains back
+    monkeypatch.setattr("sys.stdin", io.StringIO("getgains current\ngetgains velocity\n"
+                                                   "getgains position\nquit\n"))  # fmt: skip
+    argv = ["sim://", "--gains-from", str(toml), "--interactive", "--ack-timeout", "2"]
+    assert run_monitor(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count(": ok") == 3  # three SetGains acknowledged
+    assert "getgains: current loop: kp 0.1, ki 150, kd 0" in out
+    assert "getgains: velocity loop: kp 0.06, ki 1.5, kd 0" in out
+    assert "getgains: position loop: kp 12, ki 0, kd 0" in out
+
+
+def test_a_bad_gains_file_sends_nothing(tmp_path):
+    from serial_protocol.exceptions import ConfigError
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[controller.velocity]\nkp_a_per_dps = 'x'\n")
+    server = socket.create_server(("127.0.0.1", 0))  # would accept, but is never reached
+    url = f"socket://127.0.0.1:{server.getsockname()[1]}"
+    with pytest.raises(ConfigError, match="bad.toml"):
+        run_monitor([url, "--gains-from", str(bad), "--quiet"])
+    server.settimeout(0.0)
+    with pytest.raises(BlockingIOError):
+        server.accept()  # nobody connected
+    server.close()

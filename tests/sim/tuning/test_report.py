@@ -32,16 +32,39 @@ def test_tuned_toml_loads_back_with_the_new_gains(bench, tmp_path):
     assert again.firmware.limits == bench.firmware.limits
     text = out.read_text()
     assert "# The servo turntable of Du et al. 2022" in text
-    assert "kp_a_per_dps = 0.123457  # tuned (test)" in text
+    # the value replaced, the comment in the config's column, every other line as it was
+    assert "kp_a_per_dps = 0.123457         # tuned (test)\n" in text
     assert text.count("tuned (test)") == 5
+    source = BENCH.read_text().splitlines()
+    written = text.splitlines()
+    assert len(written) == len(source)
+    changed = [k for k, (a, b) in enumerate(zip(source, written, strict=True)) if a != b]
+    assert len(changed) == 5
+    for k in changed:
+        assert written[k].index("#") == source[k].index("#")
 
 
 def test_missing_keys_and_tables_are_added():
     gains = GainSet(0.2, 100.0, 0.05, 1.0, 10.0)
-    text = report.tuned_toml_text("[controller.velocity]\nacc_ff_a_per_dps2 = 0.001\n", gains, "n")
-    assert "[controller.velocity]\nki_a_per_deg = 1  # n\nkp_a_per_dps = 0.05  # n" in text
-    assert "[controller.current]\nki_v_per_as = 100  # n\nkp_v_per_a = 0.2  # n" in text
-    assert "[controller.position]\nkp_per_s = 10  # n" in text
+    source = "# my bench\n[controller.velocity]  # the speed loop\nacc_ff_a_per_dps2 = 0.001\n"
+    text = report.tuned_toml_text(source, gains, "n")
+    assert text.startswith(source)  # what was there stays, first
+    assert "kp_a_per_dps = 0.05  # n\nki_a_per_deg = 1.0  # n\n" in text
+    assert "[controller.current]\nkp_v_per_a = 0.2  # n\nki_v_per_as = 100.0  # n" in text
+    assert "[controller.position]\nkp_per_s = 10.0  # n" in text
+    import tomllib
+
+    tables = tomllib.loads(text)["controller"]
+    assert tables["velocity"] == {
+        "acc_ff_a_per_dps2": 0.001,
+        "kp_a_per_dps": 0.05,
+        "ki_a_per_deg": 1.0,
+    }
+
+
+def test_a_config_that_is_not_toml_is_a_value_error():
+    with pytest.raises(ValueError, match="not valid TOML"):
+        report.tuned_toml_text("[controller\n", GainSet(0.2, 100.0, 0.05, 1.0, 10.0), "n")
 
 
 def test_the_input_is_never_overwritten(bench, tmp_path):
