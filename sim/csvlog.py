@@ -3,9 +3,9 @@
 The header is documented in the README ("CSV columns"). The log's ``current_a`` (the plant's
 true armature current) is written as ``true_current_a``, beside ``true_pos_deg``: no CSV the
 project writes has a bare ``current_a``, and the measured current is ``current_meas_a`` in
-every one (here, and in the telemetry CSVs of ``monitor`` and ``decode``). Floats are written with 10
-significant digits (enough for motor radians over hours of motion to 1e-6 rev), the integer
-``state`` and ``fault`` codes as integers.
+every one (here, and in the telemetry CSVs of ``monitor`` and ``decode``). Floats are
+written with 10 significant digits (enough for motor radians over hours of motion to
+1e-6 rev), the integer ``state`` and ``fault`` codes as integers.
 """
 
 from __future__ import annotations
