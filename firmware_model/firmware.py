@@ -23,6 +23,7 @@ if no member could follow it; the replies, ``Status`` and telemetry describe mem
 
 from __future__ import annotations
 
+import copy
 import math
 from collections import deque
 from collections.abc import Callable
@@ -31,11 +32,13 @@ from typing import Any
 import numba
 import numpy as np
 
+from firmware_model import safety
 from firmware_model.laws import Law
 from firmware_model.laws.layout import P_DUTY, P_IMEAS, P_IREF, P_POS, P_VEL, P_VEL_RAW
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
 from planner.online import OnlinePlanner
+from planner.profile import build_profile
 from serial_protocol import frame
 from serial_protocol.messages import (
     PROTOCOL_VERSION,
@@ -193,6 +196,10 @@ class Firmware:
         budget = bytes_per_tick * (1.0 - tel.reply_reserve)
         self._auto_decimation = max(1, math.ceil(frame.TELEMETRY_FRAME_BYTES / budget))
         self._watchdog_ticks = round(params.safety.watchdog_s * params.servo.tick_hz)
+        # The hard position trip's window: the travel widened by the margin (and, from an
+        # enable outside the travel, to where the axis was; see _enable).
+        self._pos_lo_deg = self._pos_hi_deg = 0.0
+        self._set_position_window()
         # Rare events count here; the per-tick TX counters are plain ints (see counters).
         self._counts: dict[str, int] = {
             "rx_messages": 0,
@@ -241,6 +248,7 @@ class Firmware:
                 self._handle(msg)
         t_s = self.tick * self.dt_s
         mode = self._mode
+        v_clamp = self._v_clamp_dps
         if mode == "plan":
             planner = self._planners[self._kind]
             p, v, a = planner.sample(t_s)
@@ -249,11 +257,12 @@ class Firmware:
             p, v, a = self._target_deg, 0.0, 0.0
             if self._moving:
                 self._moving = not self._in_position()
+            v_clamp = min(v_clamp, self._step_edge_speed_dps())
         else:
             p, v, a = self.sp_pos_deg, 0.0, 0.0
         self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2 = p, v, a
         if self._enabled_s or (not self._scalar and self._enabled.any()):
-            law.servo(p, v, a, self._v_clamp_dps, self.current_limit_a)
+            law.servo(p, v, a, v_clamp, self.current_limit_a)
             self._check()
         self.tick += 1
         return self._transmit(tx_free)
@@ -391,8 +400,21 @@ class Firmware:
         self._enabled_s = bool(ok[0])
         self.law.reset_control()
         self.law.resync()
+        self._set_position_window()
         self._hold_here()
         self._moved = False
+
+    def _set_position_window(self) -> None:
+        """The hard position trip's window: the travel widened by the margin, and widened
+        further to where the axis is (an axis enabled outside the travel may be moved back,
+        as a planned trajectory may; it trips only if it goes further out)."""
+        lim = self.params.limits
+        margin = self.params.safety.position_limit_margin_deg
+        lo, hi = lim.travel_min_deg, lim.travel_max_deg
+        if self._booted:
+            pos = np.asarray(self.law.pos_deg, dtype=float)
+            lo, hi = min(lo, float(pos.min())), max(hi, float(pos.max()))
+        self._pos_lo_deg, self._pos_hi_deg = float(lo - margin), float(hi + margin)
 
     def _disable(self) -> None:
         self._enabled[:] = False
@@ -406,6 +428,30 @@ class Firmware:
         self.sp_pos_deg = self._pos0()
         self.sp_vel_dps = self.sp_acc_dps2 = 0.0
         self._v_clamp_dps = self.v_max_dps
+
+    def _step_edge_speed_dps(self) -> float:
+        """The speed a STEP move may have here and still brake at ``[limits] a_max_dps2``
+        before the travel end it heads for (``safety.edge_speed_dps``; the outermost member
+        in batch)."""
+        lim = self.params.limits
+        pos = self.law.pos_deg
+        up = self._target_deg >= float(pos[0])
+        pos = float(pos.max()) if up else float(pos.min())
+        return safety.edge_speed_dps(
+            pos, self._target_deg, lim.travel_min_deg, lim.travel_max_deg, lim.a_max_dps2
+        )
+
+    def _planner_from_axis(self, kind: str, t_s: float) -> OnlinePlanner:
+        """A planner whose commanded state at ``t_s`` is the measured state of the axis
+        (member 0): a planned move that takes over from a STEP move (no planner, the axis
+        may be at full speed) starts from where the axis is and how fast it moves."""
+        planner = OnlinePlanner(kind)
+        pos = self._pos0()
+        vel = _first(self.law.vel_dps)
+        planner.reset(pos)
+        planner.profile = build_profile(kind, "hold", pos, vel, 0.0, [], pos, vel)
+        planner.t_start_s = t_s
+        return planner
 
     def _in_position(self) -> bool:
         # Settled: within in_position_deg and slower than in_position_deg per 0.1 s.
@@ -428,6 +474,7 @@ class Firmware:
             float(self.sp_pos_deg), s.encoder_jump_counts, s.encoder_stuck_ticks,
             float(s.encoder_stuck_min_vel_dps), float(s.over_speed_dps),
             float(self.following_error_deg) if following else math.inf,
+            self._pos_lo_deg, self._pos_hi_deg,
         ):  # fmt: skip
             return
         innov = np.abs(law.innovation_counts)
@@ -444,6 +491,9 @@ class Firmware:
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel)
         live &= ~over
+        beyond = ~((self._pos_lo_deg <= law.pos_deg) & (law.pos_deg <= self._pos_hi_deg))
+        self._trip(live & beyond, Fault.POSITION_LIMIT, law.pos_deg)
+        live &= ~beyond
         if following:
             fe = np.abs(err) > self.following_error_deg
             self._trip(live & fe, Fault.FOLLOWING_ERROR, err)
@@ -520,9 +570,9 @@ class Firmware:
         if isinstance(msg, GetStatus):
             return Status(
                 cmd_id=msg.cmd_id, tick=self.tick, state=State(self._state0()),
-                fault=Fault(int(self._fault[0])), pos_deg=self._pos0(),
-                vel_dps=float(self.law.vel_dps[0]),
-                target_deg=self._target_deg if self._moved else self.sp_pos_deg,
+                fault=Fault(int(self._fault[0])), pos_deg=safety.wire_pos(self._pos0()),
+                vel_dps=safety.wire_pos(float(self.law.vel_dps[0])),
+                target_deg=safety.wire_pos(self._target_deg if self._moved else self.sp_pos_deg),
             )  # fmt: skip
         if isinstance(msg, GetGains):
             kp_name, ki_name = _LOOP_GAINS[Loop(msg.loop)]
@@ -591,20 +641,23 @@ class Firmware:
             self._mode = "step"
             self._v_clamp_dps = m.v_max_dps
         else:
-            planner = self._planners.get(kind)
-            if planner is None:
-                planner = self._planners[kind] = OnlinePlanner(kind)
-            if not (self._mode == "plan" and self._kind == kind):
-                # From hold or from a STEP move: start from rest where the axis is held (or,
-                # after a STEP move, where it is).
-                start = self._pos0() if self._mode == "step" else self.sp_pos_deg
-                planner.reset(start)
+            # Planned on a copy, checked over its whole extent, committed only if accepted.
+            if self._mode == "plan" and self._kind == kind:
+                planner = copy.copy(self._planners[kind])
+            elif self._mode == "step":
+                planner = self._planner_from_axis(kind, t_s)
+            else:  # from hold: from rest where the axis is held
+                planner = OnlinePlanner(kind)
+                planner.reset(self.sp_pos_deg)
             j_max = m.j_max_dps3 if kind == "scurve" else None
             try:
-                planner.command(t_s, m.target_deg, v_max=m.v_max_dps, a_max=m.a_max_dps2,
-                                j_max=j_max)  # fmt: skip
+                profile = planner.command(t_s, m.target_deg, v_max=m.v_max_dps,
+                                          a_max=m.a_max_dps2, j_max=j_max)  # fmt: skip
             except ValueError:
                 return NackCode.OUT_OF_RANGE
+            if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
+                return NackCode.OUT_OF_RANGE
+            self._planners[kind] = planner
             self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
             self._move_limits = (m.v_max_dps, m.a_max_dps2)
             self._v_clamp_dps = self.v_max_dps
@@ -620,14 +673,26 @@ class Firmware:
             return NackCode.OUT_OF_RANGE
         a_max = m.a_max_dps2 or self.a_max_dps2
         t_s = self.tick * self.dt_s
+        if self._mode == "hold":
+            return None
         if self._mode == "plan":
-            planner = self._planners[self._kind]
-            j_max = self._j_max if self._kind == "scurve" else None
-            planner.stop(t_s, a_max=a_max, j_max=j_max)
-            self._target_deg = planner.profile.p1 if planner.profile is not None else 0.0
-        elif self._mode == "step":
-            self._hold_here()  # no planner: hold where the axis is
-            self._target_deg = self.sp_pos_deg
+            kind = self._kind
+            planner = copy.copy(self._planners[kind])
+        else:  # a STEP move has no planner: brake from the measured state
+            kind = "trapezoid"
+            planner = self._planner_from_axis(kind, t_s)
+        j_max = self._j_max if kind == "scurve" else None
+        profile = planner.stop(t_s, a_max=a_max, j_max=j_max)
+        lim = self.params.limits
+        if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
+            return NackCode.OUT_OF_RANGE  # too soft to stop within the travel
+        if self._mode == "step":
+            self._mode, self._kind = "plan", kind
+            self._move_limits = (self.v_max_dps, a_max)
+            self._v_clamp_dps = self.v_max_dps
+            self._moving = True
+        self._planners[kind] = planner
+        self._target_deg = profile.p1
         return None
 
     def _cmd_set_gains(self, m: SetGains) -> NackCode | None:
@@ -666,13 +731,17 @@ class Firmware:
             move_v, move_a = self._move_limits
             if v_max < move_v or a_max < move_a:
                 new_v, new_a = min(v_max, move_v), min(a_max, move_a)
-                planner = self._planners[self._kind]
+                planner = copy.copy(self._planners[self._kind])
                 j_max = self._j_max if self._kind == "scurve" else None
                 try:
-                    planner.command(self.tick * self.dt_s, self._target_deg, v_max=new_v,
-                                    a_max=new_a, j_max=j_max)  # fmt: skip
+                    profile = planner.command(self.tick * self.dt_s, self._target_deg,
+                                              v_max=new_v, a_max=new_a, j_max=j_max)  # fmt: skip
                 except ValueError:
                     return NackCode.OUT_OF_RANGE
+                lim = self.params.limits
+                if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
+                    return NackCode.OUT_OF_RANGE  # the move could not brake within the travel
+                self._planners[self._kind] = planner
                 self._move_limits = (new_v, new_a)
         self.v_max_dps, self.a_max_dps2 = v_max, a_max
         self.current_limit_a = float(m.current_limit_a)
@@ -697,6 +766,8 @@ class Firmware:
         if m.enable:
             if (self._fault != 0).all():
                 return NackCode.FAULT_ACTIVE
+            if np.array_equal(self._enabled, self._fault == 0):
+                return None  # already enabled: the motion in progress goes on undisturbed
             self._enable()
         else:
             self._disable()
@@ -763,14 +834,17 @@ class Firmware:
 def _any_trip(
     innovation_counts, stuck_ticks, vel_ref_dps, vel_dps, pos_deg, sp_pos_deg,
     jump_counts, stuck_limit_ticks, stuck_min_vel_dps, over_speed_dps, following_error_deg,
+    pos_lo_deg, pos_hi_deg,
 ):  # fmt: skip
-    """Whether any member meets an encoder, over-speed or following-error trip condition of
-    ``Firmware._check_array`` (``following_error_deg`` inf: not checked)."""
+    """Whether any member meets an encoder, over-speed, position-limit or following-error
+    trip condition of ``Firmware._check_array`` (``following_error_deg`` inf: not
+    checked)."""
     for j in range(pos_deg.shape[0]):
         if (
             abs(innovation_counts[j]) > jump_counts
             or (stuck_ticks[j] >= stuck_limit_ticks and abs(vel_ref_dps[j]) > stuck_min_vel_dps)
             or abs(vel_dps[j]) > over_speed_dps
+            or not pos_lo_deg <= pos_deg[j] <= pos_hi_deg
             or abs(sp_pos_deg - pos_deg[j]) > following_error_deg
         ):
             return True

@@ -333,6 +333,10 @@ class SafetyParams(_Checked):
         encoder_stuck_ticks: the raw reading unchanged this many ticks while the position
             loop asks for more than ``encoder_stuck_min_vel_dps``.
         watchdog_s: no valid frame from the PC for this long while enabled (0 = off).
+        position_limit_margin_deg: the estimated axis position beyond ``[limits]
+            travel_min_deg .. travel_max_deg`` by more than this (every trajectory is planned
+            within the travel; this trip catches what planning cannot, e.g. an axis dragged
+            or coasting past the end).
     """
 
     over_current_a: float = _f(7.5, _rng(0.01, 60.0))
@@ -342,6 +346,7 @@ class SafetyParams(_Checked):
     encoder_stuck_ticks: int = _f(100, _irng(2, 100_000))
     encoder_stuck_min_vel_dps: float = _f(20.0, _rng(0.01, 1e5))
     watchdog_s: float = _f(0.0, _rng(0.0, 3600.0))
+    position_limit_margin_deg: float = _f(5.0, _rng(0.0, 1e5))
 
 
 @dataclass(frozen=True)

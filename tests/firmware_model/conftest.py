@@ -10,13 +10,19 @@ Good enough to close the loops; not an accuracy reference.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from firmware_model.firmware import Firmware
 from serial_protocol import frame
+
+# The UART fuzzers (uart_fuzz.py) are shared with benchmarks/fuzz_firmware.py: importable by
+# name from this folder (pytest runs with --import-mode=importlib, which adds no paths).
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 @dataclass

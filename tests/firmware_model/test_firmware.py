@@ -457,15 +457,19 @@ def test_current_loop_rate_and_compute_delay_variants_track(make_bench, multiple
 def test_planned_move_after_a_step_move_starts_from_the_axis(make_bench):
     b = make_bench()
     b.run(
-        300,
+        500,
         {5: [move(1, 200.0, v=300.0, profile=Profile.STEP)], 100: [move(2, 0.0, v=300.0)]},
     )
     assert acks(b) == [(1, 2), (2, 2)]
     sp, pos = b.arr("sp_pos_deg"), b.arr("pos_deg")
-    # At the interrupt the setpoint leaves the step target and restarts where the axis is.
+    # At the interrupt the setpoint leaves the step target and restarts where the axis is,
+    # at the speed the axis has (the STEP move runs at ~300 deg/s there): starting from rest
+    # would leave the axis running away from a standing setpoint.
+    vel, sp_vel = b.arr("vel_dps"), b.arr("sp_vel_dps")
     assert sp[99] == 200.0
     assert abs(sp[100] - pos[100]) < 0.01
-    assert b.arr("sp_vel_dps")[100] <= 0.0
+    assert vel[100] > 250.0 and abs(sp_vel[100] - vel[100]) < 1.0
+    assert np.all(np.diff(sp_vel[100:150]) < 0.0)  # then brakes and turns back
     assert sp[-1] == 0.0
 
 
@@ -531,13 +535,17 @@ def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
         vel_ref, vel = rng.normal(0.0, 60.0, n), rng.normal(0.0, 60.0, n)
         pos, sp = rng.normal(0.0, 1.0, n), float(rng.normal())
         fe = math.inf if rng.random() < 0.3 else 2.0
+        lo, hi = (-2.5, 2.5) if rng.random() < 0.5 else (-math.inf, math.inf)
         want = (
             (np.abs(innov) > 35)
             | ((stuck >= 10) & (np.abs(vel_ref) > 100.0))
             | (np.abs(vel) > 150.0)
             | (np.abs(sp - pos) > fe)
+            | (pos < lo)
+            | (pos > hi)
         ).any()
-        assert _any_trip(innov, stuck, vel_ref, vel, pos, sp, 35, 10, 100.0, 150.0, fe) == want
+        got = _any_trip(innov, stuck, vel_ref, vel, pos, sp, 35, 10, 100.0, 150.0, fe, lo, hi)
+        assert got == want
         hits += bool(want)
     assert 300 < hits < 2700
 
