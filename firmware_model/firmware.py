@@ -492,7 +492,7 @@ class Firmware:
         self._trip(live & over, Fault.OVER_SPEED, vel)
         live &= ~over
         beyond = ~((self._pos_lo_deg <= law.pos_deg) & (law.pos_deg <= self._pos_hi_deg))
-        self._trip(live & beyond, Fault.POSITION_LIMIT, law.pos_deg)
+        self._trip(live & beyond, Fault.TRAVEL, law.pos_deg)
         live &= ~beyond
         if following:
             fe = np.abs(err) > self.following_error_deg

@@ -128,7 +128,7 @@ class Fault(IntEnum):
     OVER_SPEED = 3
     ENCODER = 4
     WATCHDOG = 5
-    POSITION_LIMIT = 6  # the measured axis beyond the travel by more than the margin
+    TRAVEL = 6  # the estimated position beyond the travel by more than the margin
 
 
 # ---------------------------------------------------------------- PC -> board

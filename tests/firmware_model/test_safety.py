@@ -203,7 +203,7 @@ def test_position_limit_trip_catches_an_axis_dragged_past_the_end(make_bench):
     b.encoder_override = dragged
     b.run(400)
     reports = b.replies(FaultReport)
-    assert [r.fault for r in reports] == [Fault.POSITION_LIMIT]
+    assert [r.fault for r in reports] == [Fault.TRAVEL]
     assert 15.0 < reports[0].value < 15.25  # 10 deg travel + 5 deg margin, ~2 ticks of motion
 
 
