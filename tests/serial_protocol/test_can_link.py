@@ -65,38 +65,43 @@ ONE_OF_EACH = [
 ]
 
 
+MESSAGE_TYPES = tuple(type(m) for m in ONE_OF_EACH)
+
+
 def test_one_of_each_covers_every_type():
     assert {type(m).MSG_TYPE for m in ONE_OF_EACH} == set(MsgType)
 
 
 @pytest.mark.parametrize("msg", ONE_OF_EACH, ids=lambda m: type(m).__name__)
 def test_split_and_reassemble_every_message(msg):
-    frames = can_frames(msg, counter=5)
+    frames = can_frames(msg, transfer_id=37)
     size = payload_bytes(type(msg))
-    assert all(len(data) <= 8 for _, data in frames)
+    assert all(1 <= len(data) <= 8 for _, data in frames)
     assert {frame_id for frame_id, _ in frames} == {0x100 + msg.MSG_TYPE}
-    if size <= 8:
-        assert len(frames) == 1 and len(frames[0][1]) == size
+    tails = [data[0] for _, data in frames]
+    assert [t & 0x1F for t in tails] == [37 % 32] * len(frames)
+    if size <= 7:
+        assert len(frames) == 1 and tails[0] & 0xE0 == 0xC0 and len(frames[0][1]) == size + 1
     else:
-        assert len(frames) == -(-size // 7)
-        assert [data[0] & 0x0F for _, data in frames] == list(range(len(frames)))
-        assert [data[0] >> 5 for _, data in frames] == [5] * len(frames)
-        assert [bool(data[0] & 0x10) for _, data in frames] == [False] * (len(frames) - 1) + [True]
+        assert len(frames) == -(-(size + 4) // 7)  # the payload and its CRC-32
+        assert [bool(t & 0x80) for t in tails] == [True] + [False] * (len(frames) - 1)
+        assert [bool(t & 0x40) for t in tails] == [False] * (len(frames) - 1) + [True]
+        assert [t >> 5 & 1 for t in tails] == [k & 1 for k in range(len(frames))]
     reassembler = CanReassembler()
     got = [reassembler.feed(frame_id, data) for frame_id, data in frames]
     assert got == [None] * (len(frames) - 1) + [msg]
 
 
-def test_telemetry_takes_four_frames():
+def test_telemetry_takes_five_frames():
     frames = can_frames(ONE_OF_EACH[12])
-    assert [len(data) for _, data in frames] == [8, 8, 8, 6]
+    assert [len(data) for _, data in frames] == [8, 8, 8, 8, 3]  # 26 + 4 bytes of CRC
 
 
 @settings(max_examples=50)
-@given(st.permutations(range(3)), st.integers(0, 7))
-def test_interleaved_identifiers_reassemble_independently(order, counter):
+@given(st.permutations(range(3)), st.integers(0, 31))
+def test_interleaved_identifiers_reassemble_independently(order, transfer_id):
     msgs = [ONE_OF_EACH[12], ONE_OF_EACH[18], ONE_OF_EACH[1]]
-    queues = [can_frames(m, counter) for m in msgs]
+    queues = [can_frames(m, transfer_id) for m in msgs]
     reassembler = CanReassembler()
     got = []
     while any(queues):
@@ -110,25 +115,122 @@ def test_interleaved_identifiers_reassemble_independently(order, counter):
 
 
 def test_lost_segment_discards_the_message_and_the_next_one_survives():
-    first = can_frames(ONE_OF_EACH[12], counter=0)
-    second = can_frames(ONE_OF_EACH[12], counter=1)
+    first = can_frames(ONE_OF_EACH[12], transfer_id=0)
+    second = can_frames(ONE_OF_EACH[12], transfer_id=1)
     reassembler = CanReassembler()
     got = [reassembler.feed(*f) for f in first[:1] + first[2:] + second]
     assert [m for m in got if m is not None] == [ONE_OF_EACH[12]]
     assert reassembler.stats.reassembly_errors == 1
-    assert reassembler.stats.discarded_frames == 2  # segments 2 and 3 of the broken one
+    assert reassembler.stats.discarded_frames == 4  # the first segment, and 3 after the gap
     # a transfer cut short by the start of the next one is also one error
     got = [reassembler.feed(*f) for f in first[:2] + second]
     assert [m for m in got if m is not None] == [ONE_OF_EACH[12]]
     assert reassembler.stats.reassembly_errors == 2
 
 
-def test_wrong_dlc_and_unknown_type_are_malformed():
+def _telemetry_stream(n: int) -> tuple[list[Telemetry], list[tuple[int, tuple[int, bytes]]]]:
+    """``n`` distinct Telemetry messages and their frames, tagged with the message index."""
+    msgs = [
+        Telemetry(k, k / 4, 1.0, -k / 8, 2.0, 0.5, 0.25, State.MOVING, Fault.NONE) for k in range(n)
+    ]
+    frames = [(k, f) for k, m in enumerate(msgs) for f in can_frames(m, transfer_id=k)]
+    return msgs, frames
+
+
+@pytest.mark.parametrize("lost_transfers", [8, 32, 64, 96])
+def test_an_outage_of_whole_transfer_id_periods_cannot_mix_two_messages(lost_transfers):
+    """Regression: the 3-bit counter of v1 let 32 k lost frames (8 k Telemetry transfers)
+    join the start of one Telemetry to the end of another, a silently wrong message. Here
+    the transfer id wraps at 32 and lines up again after 32 k transfers, the toggle too; the
+    CRC-32 of the transfer refuses the mix."""
+    msgs, frames = _telemetry_stream(lost_transfers + 3)
+    per = len(can_frames(msgs[0]))
+    # the first two frames of transfer 0, then nothing until frame 2 of the transfer whose
+    # id and toggle line up with it again
+    kept = frames[:2] + frames[lost_transfers * per + 2 :]
     reassembler = CanReassembler()
-    assert reassembler.feed(0x100 + MsgType.GET_STATUS, b"\x07") == Malformed(
+    got = [m for _, f in kept if (m := reassembler.feed(*f)) is not None]
+    assert got == msgs[lost_transfers + 1 :]
+    if lost_transfers % 32 == 0:
+        assert reassembler.stats.crc_errors == 1
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(st.booleans(), min_size=1, max_size=300),
+    st.lists(st.integers(0, 400), max_size=6),
+    st.lists(st.integers(0, 700), max_size=20),
+)
+def test_lost_and_duplicated_frames_never_yield_a_wrong_message(keep, outages, duplicates):
+    """Any loss pattern (including outages of hundreds of frames, a whole number of transfer
+    id periods among them) and any frames repeated by the bus: every message all of whose
+    frames arrived is delivered exactly once, and nothing else is delivered."""
+    msgs, frames = _telemetry_stream(100)
+    acks = [Ack(k, MsgType.MOVE) for k in range(30)]  # one-frame messages among the others
+    for k, m in enumerate(acks):
+        (frame,) = can_frames(m, transfer_id=k)
+        frames.insert(5 * k + 3, (100 + k, frame))
+    lost = set()
+    for start in outages:
+        lost |= set(range(start, start + len(keep)))
+    lost |= {k for k in range(len(frames)) if not keep[k % len(keep)]}
+    received = []
+    for k, frame in enumerate(frames):
+        if k not in lost:
+            received.append(frame)
+            if k in duplicates:
+                received.append(frame)  # a CAN controller retransmitted it
+    reassembler = CanReassembler()
+    got = [m for _, f in received if (m := reassembler.feed(*f)) is not None]
+    everything = msgs + acks
+    complete = [
+        everything[src]
+        for src in sorted({src for src, _ in frames}, key=lambda s: _last_index(frames, s))
+        if all(k not in lost for k, (s, _) in enumerate(frames) if s == src)
+    ]
+    assert got == complete
+
+
+def _last_index(frames: list, src: int) -> int:
+    """Where the message ``src`` completes: its last frame."""
+    return max(k for k, (s, _) in enumerate(frames) if s == src)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(0x0F0, 0x210), st.binary(max_size=10)),
+        max_size=60,
+    )
+)
+def test_the_reassembler_never_raises(frames):
+    """Arbitrary identifiers and data (empty, over-long, any tail byte): messages,
+    Malformed or nothing, never an exception; the counters account for every frame."""
+    reassembler = CanReassembler()
+    out = [reassembler.feed(frame_id, data) for frame_id, data in frames]
+    s = reassembler.stats
+    assert s.frames == len(frames)
+    assert s.messages + s.malformed == sum(m is not None for m in out)
+    assert all(m is None or isinstance(m, (Malformed, *MESSAGE_TYPES)) for m in out)
+
+
+def test_a_duplicated_one_frame_message_is_delivered_once():
+    (frame,) = can_frames(Ack(5, MsgType.MOVE), transfer_id=3)
+    reassembler = CanReassembler()
+    got = [reassembler.feed(*frame) for _ in range(3)]
+    assert got == [Ack(5, MsgType.MOVE), None, None]
+    assert reassembler.stats.duplicates == 2
+    # the same message sent again as a new transfer is a new message
+    (again,) = can_frames(Ack(5, MsgType.MOVE), transfer_id=4)
+    assert reassembler.feed(*again) == Ack(5, MsgType.MOVE)
+
+
+def test_wrong_length_and_unknown_type_are_malformed():
+    reassembler = CanReassembler()
+    assert reassembler.feed(0x100 + MsgType.GET_STATUS, b"\xc0\x07") == Malformed(
         MsgType.GET_STATUS, 0, 0, NackCode.BAD_LENGTH
     )
-    assert reassembler.feed(0x100 + 0x42, b"\x09\x00") == Malformed(
+    assert reassembler.feed(0x100 + 0x42, b"\xc1\x09\x00") == Malformed(
         0x42, 0, 9, NackCode.UNKNOWN_TYPE
     )
     assert reassembler.feed(0x7FF, b"") is None
@@ -200,32 +302,3 @@ def test_frames_are_logged_with_python_can_writers(tmp_path, suffix, channel_tai
     reassembler = CanReassembler()
     replayed = [reassembler.feed(f.arbitration_id, bytes(f.data)) for f in logged]
     assert [m for m in replayed if m is not None] == [*msgs, GetStatus(99)]
-
-
-@settings(max_examples=100, deadline=None)
-@given(st.lists(st.booleans(), min_size=40, max_size=160), st.integers(0, 7))
-def test_lost_frames_never_yield_a_wrong_message(keep, first_counter):
-    msgs = [
-        Telemetry(k, k / 4, 1.0, -k / 8, 2.0, 0.5, 0.25, State.MOVING, Fault.NONE)
-        if k % 3
-        else Status(k, k, State.MOVING, Fault.NONE, k / 2, 1.0, 3.0)
-        for k in range(40)
-    ]
-    counters = {}
-    frames = []
-    for msg in msgs:
-        counter = counters.get(msg.MSG_TYPE, first_counter)
-        frames += [(msg, f) for f in can_frames(msg, counter)]
-        counters[msg.MSG_TYPE] = (counter + 1) & 7
-    reassembler = CanReassembler()
-    got = []
-    for k, (_msg, (frame_id, data)) in enumerate(frames):
-        if keep[k % len(keep)] or k % 7 == 0:  # drop frames, but never 8 transfers in a row
-            out = reassembler.feed(frame_id, data)
-            if out is not None:
-                got.append(out)
-    complete = [
-        m for m in msgs
-        if all(keep[k % len(keep)] or k % 7 == 0 for k, (src, _) in enumerate(frames) if src is m)
-    ]  # fmt: skip
-    assert got == complete
