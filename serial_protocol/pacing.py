@@ -161,7 +161,7 @@ class FrameQueue:
         if not data:
             return
         if not self.drop_oldest:
-            room = self.max_bytes - self._queued - len(self._tail)
+            room = self.max_bytes - len(self) - len(self._tail)
             if len(data) > room:
                 # Over the size: split only what fits (a flood costs at most the size per
                 # chunk), then drop the rest, the frame it cuts, and everything up to the
@@ -275,12 +275,12 @@ class FrameQueue:
         if self.drop_oldest:
             self._units.append((unit, is_frame))
             self._queued += size
-            while self._queued > self.max_bytes and len(self._units) > 1:
+            while len(self) > self.max_bytes and len(self._units) > 1:
                 old, old_is_frame = self._units.popleft()
                 self._queued -= len(old)
                 self._count_drop(old, old_is_frame)
             return
-        if self._queued + size > self.max_bytes:
+        if len(self) + size > self.max_bytes:
             self._count_drop(unit, is_frame)
             self._skipping = True
             return
