@@ -51,15 +51,16 @@ MAX_TRANSFER_BYTES = MAX_PAYLOAD_BYTES + CRC_BYTES
 
 
 def can_frames(
-    msg: Message, transfer_id: int = 0, base_id: int = DEFAULT_BASE_ID
+    msg: Message, counter: int = 0, base_id: int = DEFAULT_BASE_ID
 ) -> list[tuple[int, bytes]]:
     """Split ``msg`` into ``(arbitration_id, data)`` CAN frames.
 
-    ``transfer_id`` (taken modulo 32): the sender's count of the messages it sent on this
-    identifier. Raises ``ValueError`` if ``base_id + type`` is not an 11-bit identifier.
+    ``counter``: the transfer id (taken modulo 32), the sender's count of the messages it
+    sent on this identifier. Raises ``ValueError`` if ``base_id + type`` is not an 11-bit
+    identifier.
     """
     msg_type, payload = encode_payload(msg)
-    return frames_of_payload(msg_type, payload, transfer_id, base_id)
+    return frames_of_payload(msg_type, payload, counter, base_id)
 
 
 def frames_of_payload(

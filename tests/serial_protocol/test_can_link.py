@@ -74,7 +74,7 @@ def test_one_of_each_covers_every_type():
 
 @pytest.mark.parametrize("msg", ONE_OF_EACH, ids=lambda m: type(m).__name__)
 def test_split_and_reassemble_every_message(msg):
-    frames = can_frames(msg, transfer_id=37)
+    frames = can_frames(msg, counter=37)
     size = payload_bytes(type(msg))
     assert all(1 <= len(data) <= 8 for _, data in frames)
     assert {frame_id for frame_id, _ in frames} == {0x100 + msg.MSG_TYPE}
@@ -115,8 +115,8 @@ def test_interleaved_identifiers_reassemble_independently(order, transfer_id):
 
 
 def test_lost_segment_discards_the_message_and_the_next_one_survives():
-    first = can_frames(ONE_OF_EACH[12], transfer_id=0)
-    second = can_frames(ONE_OF_EACH[12], transfer_id=1)
+    first = can_frames(ONE_OF_EACH[12], counter=0)
+    second = can_frames(ONE_OF_EACH[12], counter=1)
     reassembler = CanReassembler()
     got = [reassembler.feed(*f) for f in first[:1] + first[2:] + second]
     assert [m for m in got if m is not None] == [ONE_OF_EACH[12]]
@@ -133,7 +133,7 @@ def _telemetry_stream(n: int) -> tuple[list[Telemetry], list[tuple[int, tuple[in
     msgs = [
         Telemetry(k, k / 4, 1.0, -k / 8, 2.0, 0.5, 0.25, State.MOVING, Fault.NONE) for k in range(n)
     ]
-    frames = [(k, f) for k, m in enumerate(msgs) for f in can_frames(m, transfer_id=k)]
+    frames = [(k, f) for k, m in enumerate(msgs) for f in can_frames(m, counter=k)]
     return msgs, frames
 
 
@@ -168,7 +168,7 @@ def test_lost_and_duplicated_frames_never_yield_a_wrong_message(keep, outages, d
     msgs, frames = _telemetry_stream(100)
     acks = [Ack(k, MsgType.MOVE) for k in range(30)]  # one-frame messages among the others
     for k, m in enumerate(acks):
-        (frame,) = can_frames(m, transfer_id=k)
+        (frame,) = can_frames(m, counter=k)
         frames.insert(5 * k + 3, (100 + k, frame))
     lost = set()
     for start in outages:
@@ -215,13 +215,13 @@ def test_the_reassembler_never_raises(frames):
 
 
 def test_a_duplicated_one_frame_message_is_delivered_once():
-    (frame,) = can_frames(Ack(5, MsgType.MOVE), transfer_id=3)
+    (frame,) = can_frames(Ack(5, MsgType.MOVE), counter=3)
     reassembler = CanReassembler()
     got = [reassembler.feed(*frame) for _ in range(3)]
     assert got == [Ack(5, MsgType.MOVE), None, None]
     assert reassembler.stats.duplicates == 2
     # the same message sent again as a new transfer is a new message
-    (again,) = can_frames(Ack(5, MsgType.MOVE), transfer_id=4)
+    (again,) = can_frames(Ack(5, MsgType.MOVE), counter=4)
     assert reassembler.feed(*again) == Ack(5, MsgType.MOVE)
 
 

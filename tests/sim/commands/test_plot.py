@@ -71,7 +71,7 @@ def _write_can_log(path: Path, tel) -> None:
 
     with can.Logger(str(path)) as logger:
         for k, m in enumerate(tel):
-            for arbitration_id, data in can_frames(m, transfer_id=k):
+            for arbitration_id, data in can_frames(m, counter=k):
                 logger.on_message_received(
                     can.Message(
                         timestamp=k * 0.002, arbitration_id=arbitration_id, data=data,
