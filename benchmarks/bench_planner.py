@@ -132,17 +132,18 @@ def replan_table() -> list[str]:
             least.append(min(runs))
         for label, xs in (("once", once), ("least of 5", least)):
             xs = sorted(xs)
+            over = sum(x > 200.0 for x in xs)
             lines.append(
                 f"| {name}, {label} | {statistics.median(xs):,.1f} | "
-                f"{xs[int(0.99 * len(xs))]:,.1f} | {xs[-1]:,.1f} |"
+                f"{xs[int(0.99 * len(xs))]:,.1f} | {xs[-1]:,.1f} | {over} |"
             )
     load_after = os.getloadavg()[0]
     return [
         f"S-curve replan over {N_REPLAN:,} random states (load average {load_before:.2f} "
         f"before, {load_after:.2f} after; target: max <= 200 us):",
         "",
-        "| operation | median (us) | p99 (us) | max (us) |",
-        "|---|---:|---:|---:|",
+        "| operation | median (us) | p99 (us) | max (us) | > 200 us |",
+        "|---|---:|---:|---:|---:|",
         *lines,
     ]
 
