@@ -540,6 +540,35 @@ def _offer(cand, n, d, v0, a0, a_acc, a_dec, best, lim):
 
 
 @numba.njit(cache=True)
+def _classic(d, v0, v_max, a_max, j_max, best, cand, lim):
+    """From ``(v0, 0)``, |v0| <= v_max, to rest at ``d``: the peak ``vp`` goes the way of the
+    target beyond the stopping point (``sigma``), and the distance of pulse-peak-pulse is
+    increasing in ``sigma * vp`` from ``max(sigma * v0, 0)`` to ``v_max``, so the root is the
+    one bracketed there (a cruise at ``sigma * v_max`` if even that peak falls short)."""
+    n = _pulse(v0, 0.0, 0.0, a_max, j_max, cand, 0)
+    stop_dist, _ = _integrate(cand, 0, n, v0, 0.0)
+    sigma = 1.0 if d >= stop_dist else -1.0
+    f_hi = _residual(0, sigma * v_max, 0.0, 0.0, d, v0, 0.0, 0.0, v_max, a_max, a_max, j_max,
+                     cand)  # fmt: skip
+    if sigma * f_hi <= 0.0:
+        t_c = -f_hi / (sigma * v_max)
+        _consider(0, sigma * v_max, 0.0, t_c, d, v0, 0.0, 0.0, v_max, a_max, a_max, j_max,
+                  best, cand, lim)  # fmt: skip
+        return
+    lo = max(sigma * v0, 0.0) * sigma
+    f_lo = _residual(0, lo, 0.0, 0.0, d, v0, 0.0, 0.0, v_max, a_max, a_max, j_max, cand)
+    if sigma * f_lo >= 0.0:
+        vp = lo  # the direct stop (or rest to rest over no distance): no second pulse
+    else:
+        a, b, fa, fb = lo, sigma * v_max, f_lo, f_hi
+        if a > b:
+            a, b, fa, fb = b, a, fb, fa
+        vp = _refine(0, 0.0, 0.0, a, b, fa, fb, d, v0, 0.0, 0.0, v_max, a_max, a_max, j_max,
+                     cand)  # fmt: skip
+    _consider(0, vp, 0.0, 0.0, d, v0, 0.0, 0.0, v_max, a_max, a_max, j_max, best, cand, lim)
+
+
+@numba.njit(cache=True)
 def _brake(v0, a0, v_max, a_max, j_max):
     """A brake pre-profile to a state within the limits, ``(t_jerk, jerk, t_const)``: the
     rule of ruckig's position brake (jerk toward -a_max until the speed is back at v_max, or
@@ -620,6 +649,13 @@ def scurve_phases(d, v0, a0, vf, v_max, a_acc, a_dec, j_max):
     v_allowed = max(v_max, abs(v0), abs(v_nat)) * (1 + 1e-9)
     lim = _new_state(v_allowed, v_max * (1 + 1e-9), t_brake)
     outside = t_brake > 0.0 or abs(a0) > a_top
+    if a0 == 0.0 and vf == 0.0 and a_acc == a_dec and not outside:
+        # The classic case (a move or a replan from a cruise): family A's distance is
+        # monotonic on the branch that holds the optimum, so one bracketed root does.
+        _classic(d, v0, v_max, a_acc, j_max, best, cand, lim)
+        if lim[_BEST_DUR] < math.inf:
+            n = int(lim[_BEST_N])
+            return best[:, :n].copy(), n, True
     _search(d, v0, a0, vf, v_max, a_acc, a_dec, j_max, outside, best, cand, lim)
     if outside:
         # One more candidate: ruckig's brake pre-profile (back within the limits), then the
