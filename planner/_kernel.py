@@ -29,8 +29,8 @@ MAX_PHASES = 16
 # Candidate grids of the S-curve search (see planner.scurve's docstring).
 _GRID_PEAK = 32  # family A: peak velocities on [-v_max, v_max]
 _GRID_TAU = 16  # family B: durations of the first jerk phase
-_GRID_TAU1 = 12  # family C: durations of the first of two jerk phases
-_GRID_TAU2 = 12  # family C: roots over the second one
+_GRID_TAU1 = 8  # family C: durations of the first of two jerk phases
+_GRID_TAU2 = 8  # family C: roots over the second one
 
 
 def segments(x0, x1, v0, v1, v_max, a_acc, a_dec):
