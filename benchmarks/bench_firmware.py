@@ -25,7 +25,7 @@ import numpy as np
 from firmware_model.firmware import Firmware
 from firmware_model.params import FirmwareParams, LimitsParams, ServoParams
 from serial_protocol import frame
-from serial_protocol.messages import Move
+from serial_protocol.messages import Hello, Move
 
 CHUNK_TICKS = 50
 
@@ -50,9 +50,12 @@ def bench(arithmetic: str, batch: int | None, n_ticks: int) -> tuple[float, floa
     stream = _encoder_stream(n_ticks)
     targets = {5: 3000.0, n_ticks // 5: -8000.0, n_ticks // 2: -1000.0}
     script = {
-        k: frame.encode(Move(cmd_id=i + 1, target_deg=t, v_max_dps=990.0, a_max_dps2=148.0), i)
+        k: frame.encode(
+            Move(cmd_id=i + 1, target_deg=t, v_max_dps=990.0, a_max_dps2=148.0, session=1), i + 1
+        )
         for i, (k, t) in enumerate(targets.items())
     }
+    script[5] = frame.encode(Hello(0, session=1), 0) + script[5]  # open the session first
     if batch is None:
         enc: list = stream
         adc: object = 300

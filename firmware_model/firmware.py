@@ -41,15 +41,22 @@ from planner.online import OnlinePlanner
 from planner.profile import build_profile
 from serial_protocol import frame
 from serial_protocol.messages import (
+    COMMAND_TYPES,
+    FAULT_FLAG,
+    NO_FIELD,
     PROTOCOL_VERSION,
     Ack,
+    BoardHeartbeat,
     ClearFault,
     Fault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -93,8 +100,19 @@ _LOOP_GAINS = {
     Loop.VELOCITY: ("kp_v", "ki_v"),
     Loop.POSITION: ("kp_p", None),
 }
-# Commands that change something: a repeat of the last cmd_id is answered, not re-applied.
+# Commands that change something: a repeat of the last one of the session is answered
+# again, not re-applied.
 _MUTATING = (Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry)
+#: Smallest positive rate or limit a command may carry (deg/s, deg/s², A, deg): the lower
+#: bound of the documented ranges (docs/protocol.md section 4).
+MIN_POSITIVE = 1e-3
+#: Bytes the board's receive ring holds per servo tick; more is lost and counted.
+RX_BUFFER_BYTES = 256
+#: Bit t set: command type t is handled (HelloReply.command_mask).
+COMMAND_MASK = sum(1 << int(cls.MSG_TYPE) for cls in COMMAND_TYPES)
+_COMMAND_CLASSES = frozenset(COMMAND_TYPES)
+# A refusal: (code, refused field name or None, limit in the field's unit).
+_Refusal = tuple[NackCode, str | None, float]
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
     int(State.IDLE),
@@ -102,10 +120,6 @@ _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.HOLDING),
     int(State.FAULT),
 )
-
-
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
 
 
 class Firmware:
@@ -163,7 +177,12 @@ class Firmware:
         self._enabled_s = False
         self._oc_ticks = np.zeros(n, dtype=np.int64)
         self._oc_s = 0
+        # The over-current trip threshold (SetLimits.over_current_trip_a), separate from the
+        # clamp current_limit_a; the configured value is its ceiling.
         self._oc_thr_a = params.safety.over_current_a
+        # Per member: latched FaultFlag bits; member 0's trip details per bit (GetFault).
+        self._flags = np.zeros(n, dtype=np.int64)
+        self._fault_info: dict[int, tuple[int, float, float]] = {}
         self._oc_samples = params.safety.over_current_ticks
         # Limits that SetLimits may change.
         lim = params.limits
@@ -187,10 +206,16 @@ class Firmware:
         # Link.
         self.decoder = frame.Decoder()
         self._replies: deque[Any] = deque()
-        self._last_cmd: tuple[int, int] | None = None
+        self.session = 0  # 0: no session opened yet
+        self._last_cmd: Any = None  # last mutating command of the session, and its answer
         self._last_reply: Any = None
         self._seq = 0
-        self._last_rx_tick = 0
+        self._last_rx_tick = 0  # last tick a frame of the session fed the watchdog
+        self._last_byte_tick = 0  # last tick a byte arrived (the silence rule)
+        tick_hz = params.servo.tick_hz
+        self._silence_ticks = max(1, math.ceil(frame.RX_SILENCE_S * tick_hz - 1e-9))
+        self._heartbeat_ticks = round(params.telemetry.heartbeat_s * tick_hz)
+        self._rx_overflow_bytes = 0
         tel = params.telemetry
         bytes_per_tick = tel.baud / 10.0 / params.servo.tick_hz
         budget = bytes_per_tick * (1.0 - tel.reply_reserve)
@@ -209,6 +234,8 @@ class Firmware:
             "nacks": 0,
             "faults": 0,
             "tx_replies_dropped": 0,
+            "sessions": 0,
+            "heartbeats": 0,
         }
         self._tx_frames = 0
         self._tx_bytes = 0
@@ -244,8 +271,9 @@ class Firmware:
             self._boot(encoder_counts)
         law.estimate(encoder_counts)
         if rx_bytes:
-            for msg in self.decoder.feed(rx_bytes):
-                self._handle(msg)
+            self._receive(rx_bytes)
+        elif self.decoder._buf and self.tick - self._last_byte_tick >= self._silence_ticks:
+            self._silence()
         t_s = self.tick * self.dt_s
         mode = self._mode
         v_clamp = self._v_clamp_dps
@@ -291,7 +319,8 @@ class Firmware:
                 if abs(i_meas[0]) > self._oc_thr_a:
                     self._oc_s += 1
                     if self._oc_s >= self._oc_samples:
-                        self._trip(np.array([True]), Fault.OVER_CURRENT, i_meas[0])
+                        self._trip(np.array([True]), Fault.OVER_CURRENT, i_meas[0],
+                                   self._oc_thr_a)  # fmt: skip
                         return 0.0, False
                 else:
                     self._oc_s = 0
@@ -308,7 +337,7 @@ class Firmware:
         self._oc_s = 1
         trip = self._oc_ticks >= self._oc_samples
         if trip.any():
-            self._trip(trip, Fault.OVER_CURRENT, i_meas)
+            self._trip(trip, Fault.OVER_CURRENT, i_meas, self._oc_thr_a)
             duty = law.duty.copy()
             enabled = self._enabled.copy()
         return duty, enabled
@@ -486,28 +515,35 @@ class Firmware:
             (stuck >= s.encoder_stuck_ticks)
             & (np.abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps)
         )
-        self._trip(live & enc, Fault.ENCODER, law.raw_counts.astype(float))
+        self._trip(live & enc, Fault.ENCODER, law.raw_counts.astype(float),
+                   float(s.encoder_jump_counts))  # fmt: skip
         live &= ~enc
         over = np.abs(vel) > s.over_speed_dps
-        self._trip(live & over, Fault.OVER_SPEED, vel)
+        self._trip(live & over, Fault.OVER_SPEED, vel, s.over_speed_dps)
         live &= ~over
         beyond = ~((self._pos_lo_deg <= law.pos_deg) & (law.pos_deg <= self._pos_hi_deg))
-        self._trip(live & beyond, Fault.TRAVEL, law.pos_deg)
+        end_deg = self._pos_hi_deg if law.pos_deg[0] > self._pos_hi_deg else self._pos_lo_deg
+        self._trip(live & beyond, Fault.TRAVEL, law.pos_deg, float(end_deg))
         live &= ~beyond
         if following:
             fe = np.abs(err) > self.following_error_deg
-            self._trip(live & fe, Fault.FOLLOWING_ERROR, err)
+            self._trip(live & fe, Fault.FOLLOWING_ERROR, err, self.following_error_deg)
             live &= ~fe
         if watchdog:
             ticks = float(self.tick - self._last_rx_tick)
-            self._trip(live, Fault.WATCHDOG, np.full(self._n, ticks))
+            self._trip(live, Fault.WATCHDOG, np.full(self._n, ticks), float(self._watchdog_ticks))
 
-    def _trip(self, mask: Any, fault: Fault, value: Any) -> None:
-        """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion."""
+    def _trip(self, mask: Any, fault: Fault, value: Any, threshold: float = 0.0) -> None:
+        """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion.
+
+        ``value`` is what tripped it (scalar or ``(N,)``), ``threshold`` the bound crossed;
+        both are reported (``FaultReport``, ``GetFault``) in the fault's unit."""
         mask = np.asarray(mask, dtype=bool) & (self._fault == 0)
         if not mask.any():
             return
         self._fault[mask] = int(fault)
+        flag = int(FAULT_FLAG[fault])
+        self._flags[mask] |= flag
         self._enabled[mask] = False
         self._flags_version += 1
         self._enabled_s = bool(self._enabled[0])
@@ -518,9 +554,31 @@ class Firmware:
         self.law.reset_control(mask)
         if mask[0]:
             v = float(value) if np.ndim(value) == 0 else float(np.asarray(value)[0])
-            self._queue(FaultReport(tick=self.tick, fault=fault, value=v))
+            self._fault_info[flag.bit_length() - 1] = (self.tick, v, float(threshold))
+            self._queue(FaultReport(tick=self.tick, fault=fault, value=v,
+                                    fault_flags=int(self._flags[0]),
+                                    threshold=float(threshold)))  # fmt: skip
         if not self._enabled.any():
             self._hold_here()
+
+    # ------------------------------------------------------------------ receive
+    def _receive(self, rx_bytes: bytes) -> None:
+        """The bytes of one tick: the silence rule, the receive ring, the decoder."""
+        if self.decoder._buf and self.tick - self._last_byte_tick >= self._silence_ticks:
+            self._silence()
+        self._last_byte_tick = self.tick
+        if len(rx_bytes) > RX_BUFFER_BYTES:
+            # The DMA ring holds RX_BUFFER_BYTES per tick: the rest is lost, counted.
+            self._rx_overflow_bytes += len(rx_bytes) - RX_BUFFER_BYTES
+            rx_bytes = rx_bytes[:RX_BUFFER_BYTES]
+        for msg in self.decoder.feed(rx_bytes):
+            self._handle(msg)
+
+    def _silence(self) -> None:
+        """``RX_SILENCE_S`` without a byte: give up the partial frame (a whole frame found in
+        the held-back bytes is still handled)."""
+        for msg in self.decoder.flush():
+            self._handle(msg)
 
     # ------------------------------------------------------------------ commands
     def _queue(self, msg: Any) -> None:
@@ -529,50 +587,99 @@ class Firmware:
             self._counts["tx_replies_dropped"] += 1
         self._replies.append(msg)
 
-    def _nack(self, msg: Any, code: NackCode) -> Nack:
+    def _nack(
+        self, msg: Any, code: NackCode, field: str | int | None = None, limit: float = 0.0
+    ) -> Nack:
+        """Count and build the ``Nack`` of ``msg`` naming ``field`` (a name or an index)."""
         self._counts["nacks"] += 1
         self._counts[f"nack_{code.name}"] += 1
-        return Nack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE), code=code)
+        if isinstance(msg, Malformed):
+            msg_type, index = msg.msg_type, msg.field
+        else:
+            msg_type = int(msg.MSG_TYPE)
+            if field is None:
+                index = NO_FIELD
+            elif isinstance(field, int):
+                index = field
+            else:
+                index = frame.field_index(type(msg), field)
+        return Nack(msg.cmd_id, msg_type, code, index, float(limit))
 
     def _handle(self, msg: Any) -> None:
+        """One decoded frame: NACK what cannot be a command, check the session, then
+        answer (queries), apply once (commands) or just feed the watchdog (heartbeats)."""
         if isinstance(msg, Malformed):
             self._counts["rx_malformed"] += 1
-            self._counts["nacks"] += 1
-            self._counts[f"nack_{NackCode(msg.code).name}"] += 1
-            self._queue(Nack(cmd_id=msg.cmd_id, msg_type=msg.msg_type, code=msg.code))
+            self._queue(self._nack(msg, NackCode(msg.code)))
             return
         self._counts["rx_messages"] += 1
-        self._last_rx_tick = self.tick
+        if type(msg) not in _COMMAND_CLASSES:
+            # A board -> PC type (our own frames echoed back, a confused peer): never fed
+            # to the watchdog, never applied.
+            self._queue(Nack(getattr(msg, "cmd_id", 0), int(msg.MSG_TYPE),
+                             NackCode.NOT_A_COMMAND))  # fmt: skip
+            self._counts["nacks"] += 1
+            self._counts["nack_NOT_A_COMMAND"] += 1
+            return
+        if isinstance(msg, Hello):
+            self._queue(self._hello(msg))
+            return
+        if msg.session != self.session or not self.session:
+            code = NackCode.NO_SESSION if not self.session else NackCode.STALE_SESSION
+            self._queue(self._nack(msg, code, "session", float(self.session)))
+            return
+        self._last_rx_tick = self.tick  # a frame of the session: feeds the watchdog
+        if isinstance(msg, Heartbeat):
+            self._counts["heartbeats"] += 1
+            return
         if isinstance(msg, _MUTATING):
-            key = (msg.cmd_id, int(msg.MSG_TYPE))
-            if key == self._last_cmd:
+            # A retry is the same command again: same type and payload (cmd_id included).
+            if msg == self._last_cmd:
                 self._counts["duplicates"] += 1
                 self._queue(self._last_reply)
                 return
             reply = self._apply(msg)
-            self._last_cmd, self._last_reply = key, reply
+            self._last_cmd, self._last_reply = msg, reply
             if isinstance(reply, Ack):
                 self._counts["commands_applied"] += 1
             self._queue(reply)
             return
-        reply = self._query(msg)
-        if reply is not None:
-            self._queue(reply)
+        self._queue(self._query(msg))
+
+    def _hello(self, msg: Hello) -> HelloReply | Nack:
+        """Open session ``msg.session``: forget the previous session's duplicate memory.
+        Motion, enable, faults and telemetry settings are not touched."""
+        if not msg.version_min <= PROTOCOL_VERSION <= msg.version_max:
+            return self._nack(msg, NackCode.UNSUPPORTED_VERSION, "version_min",
+                              float(PROTOCOL_VERSION))  # fmt: skip
+        if msg.session == 0:
+            return self._nack(msg, NackCode.TOO_LOW, "session", 1.0)
+        self.session = msg.session
+        self._last_cmd = self._last_reply = None
+        self._last_rx_tick = self.tick
+        self._counts["sessions"] += 1
+        major, minor, patch = FW_VERSION
+        p = self.params
+        return HelloReply(
+            cmd_id=msg.cmd_id, session=msg.session, protocol_version=PROTOCOL_VERSION,
+            fw_major=major, fw_minor=minor, fw_patch=patch, tick_hz=round(p.servo.tick_hz),
+            counts_per_rev=16384, command_mask=COMMAND_MASK,
+            max_payload_bytes=frame.MAX_PAYLOAD_BYTES, rx_buffer_bytes=RX_BUFFER_BYTES,
+            reply_queue_frames=p.telemetry.reply_queue_frames,
+            telemetry_min_decimation=self._auto_decimation,
+            heartbeat_ms=min(65535, round(p.telemetry.heartbeat_s * 1000)),
+            watchdog_ms=min(65535, round(p.safety.watchdog_s * 1000)),
+            rx_silence_ms=round(frame.RX_SILENCE_S * 1000), baud=p.telemetry.baud,
+        )  # fmt: skip
 
     def _query(self, msg: Any) -> Any:
-        if isinstance(msg, Hello):
-            major, minor, patch = FW_VERSION
-            return HelloReply(
-                protocol_version=PROTOCOL_VERSION, fw_major=major, fw_minor=minor,
-                fw_patch=patch, tick_hz=round(self.params.servo.tick_hz),
-                counts_per_rev=16384,
-            )  # fmt: skip
         if isinstance(msg, GetStatus):
             return Status(
                 cmd_id=msg.cmd_id, tick=self.tick, state=State(self._state0()),
                 fault=Fault(int(self._fault[0])), pos_deg=safety.wire_pos(self._pos0()),
                 vel_dps=safety.wire_pos(float(self.law.vel_dps[0])),
                 target_deg=safety.wire_pos(self._target_deg if self._moved else self.sp_pos_deg),
+                fault_flags=int(self._flags[0]), session=self.session,
             )  # fmt: skip
         if isinstance(msg, GetGains):
             kp_name, ki_name = _LOOP_GAINS[Loop(msg.loop)]
@@ -580,12 +687,43 @@ class Firmware:
             ki = _first(g[ki_name]) if ki_name else 0.0
             return Gains(cmd_id=msg.cmd_id, loop=msg.loop, kp=_first(g[kp_name]), ki=ki, kd=0.0)
         if isinstance(msg, GetLimits):
+            lim, s = self.params.limits, self.params.safety
             return Limits(
                 cmd_id=msg.cmd_id, v_max_dps=self.v_max_dps, a_max_dps2=self.a_max_dps2,
                 current_limit_a=self.current_limit_a,
                 following_error_deg=self.following_error_deg,
+                over_current_trip_a=self._oc_thr_a, travel_min_deg=lim.travel_min_deg,
+                travel_max_deg=lim.travel_max_deg, over_speed_dps=s.over_speed_dps,
+                over_current_max_a=s.over_current_a,
             )  # fmt: skip
-        return None  # board -> PC messages sent to the board are ignored (counted as rx)
+        if isinstance(msg, GetFault):
+            if not 0 <= msg.bit <= 31:
+                return self._nack(msg, NackCode.TOO_HIGH, "bit", 31.0)
+            info = self._fault_info.get(msg.bit)
+            if info is None or not int(self._flags[0]) >> msg.bit & 1:
+                return FaultInfo(msg.cmd_id, msg.bit, False, 0, 0.0, 0.0)
+            return FaultInfo(msg.cmd_id, msg.bit, True, *info)
+        raise AssertionError(f"no handler for {msg!r}")  # every command class is handled
+
+    def fault_flags(self) -> Any:
+        """Latched ``FaultFlag`` bits (int; ``(N,)`` int array in batch)."""
+        if self._scalar:
+            return int(self._flags[0])
+        return self._flags.copy()
+
+    def link_status(self) -> BoardHeartbeat:
+        """The board's heartbeat now: state, faults and the receiver's counters."""
+        d = self.decoder
+        w = 0xFFFFFFFF
+        return BoardHeartbeat(
+            tick=self.tick, session=self.session, state=State(self._state0()),
+            fault_flags=int(self._flags[0]), rx_frames=d.frames & w,
+            rx_crc_errors=d.crc_errors & w, rx_header_errors=d.header_errors & w,
+            rx_bytes_dropped=d.bytes_dropped & w, rx_seq_gaps=d.seq_gaps & w,
+            rx_overflow_bytes=self._rx_overflow_bytes & w,
+            rx_silence_discards=d.partial_discards & w, rx_nacked=self._counts["nacks"] & w,
+            tx_telemetry_dropped=self._tx_dropped & w,
+        )  # fmt: skip
 
     def _state0(self) -> int:
         """The state of member 0 (the one replies and telemetry describe)."""
@@ -606,33 +744,36 @@ class Firmware:
             SetEnable: self._cmd_set_enable,
             SetTelemetry: self._cmd_set_telemetry,
         }[type(msg)]
-        code = handler(msg)
-        if code is not None:
-            return self._nack(msg, code)
+        refusal = handler(msg)
+        if refusal is not None:
+            return self._nack(msg, *refusal)
         return Ack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE))
 
-    def _motion_refused(self) -> NackCode | None:
+    def _motion_refused(self) -> _Refusal | None:
         if (self._fault != 0).all():
-            return NackCode.FAULT_ACTIVE
+            return NackCode.FAULT_ACTIVE, None, 0.0
         if not self._enabled.any():
-            return NackCode.DISABLED
+            return NackCode.DISABLED, None, 0.0
         return None
 
-    def _cmd_move(self, m: Move) -> NackCode | None:
-        if not _finite(m.target_deg, m.v_max_dps, m.a_max_dps2, m.j_max_dps3):
-            return NackCode.NOT_FINITE
+    def _cmd_move(self, m: Move) -> _Refusal | None:
         lim = self.params.limits
         profile = Profile(m.profile)
-        if not (
-            lim.travel_min_deg <= m.target_deg <= lim.travel_max_deg
-            and 0.0 < m.v_max_dps <= self.v_max_dps
-            and 0.0 < m.a_max_dps2 <= self.a_max_dps2
-            and (profile is not Profile.SCURVE or m.j_max_dps3 > 0.0)
-        ):
-            return NackCode.OUT_OF_RANGE
+        checks = [
+            ("target_deg", m.target_deg, lim.travel_min_deg, lim.travel_max_deg),
+            ("v_max_dps", m.v_max_dps, MIN_POSITIVE, self.v_max_dps),
+            ("a_max_dps2", m.a_max_dps2, MIN_POSITIVE, self.a_max_dps2),
+        ]
+        if profile is Profile.SCURVE:
+            checks.append(("j_max_dps3", m.j_max_dps3, MIN_POSITIVE, math.inf))
+        elif not math.isfinite(m.j_max_dps3):
+            return NackCode.NOT_FINITE, "j_max_dps3", 0.0
+        refusal = _check_ranges(checks)
+        if refusal is not None:
+            return refusal
         kind = _PROFILE_KIND.get(profile)
         if kind is not None and self._mode == "plan" and self._moving and kind != self._kind:
-            return NackCode.OUT_OF_RANGE  # the profile kind changes only at rest
+            return NackCode.BUSY, "profile", 0.0  # the profile kind changes only at rest
         refused = self._motion_refused()
         if refused is not None:
             return refused
@@ -654,9 +795,10 @@ class Firmware:
                 profile = planner.command(t_s, m.target_deg, v_max=m.v_max_dps,
                                           a_max=m.a_max_dps2, j_max=j_max)  # fmt: skip
             except ValueError:
-                return NackCode.OUT_OF_RANGE
-            if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
-                return NackCode.OUT_OF_RANGE
+                return NackCode.OUT_OF_RANGE, None, 0.0
+            refusal = self._travel_refusal(profile, None)
+            if refusal is not None:
+                return refusal
             self._planners[kind] = planner
             self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
             self._move_limits = (m.v_max_dps, m.a_max_dps2)
@@ -666,11 +808,11 @@ class Firmware:
         self._moved = True
         return None
 
-    def _cmd_stop(self, m: Stop) -> NackCode | None:
-        if not _finite(m.a_max_dps2):
-            return NackCode.NOT_FINITE
-        if not 0.0 <= m.a_max_dps2 <= self.a_max_dps2:
-            return NackCode.OUT_OF_RANGE
+    def _cmd_stop(self, m: Stop) -> _Refusal | None:
+        if m.a_max_dps2 != 0.0:  # 0: the configured a_max
+            refusal = _check_ranges([("a_max_dps2", m.a_max_dps2, MIN_POSITIVE, self.a_max_dps2)])
+            if refusal is not None:
+                return refusal
         a_max = m.a_max_dps2 or self.a_max_dps2
         t_s = self.tick * self.dt_s
         if self._mode == "hold":
@@ -683,9 +825,9 @@ class Firmware:
             planner = self._planner_from_axis(kind, t_s)
         j_max = self._j_max if kind == "scurve" else None
         profile = planner.stop(t_s, a_max=a_max, j_max=j_max)
-        lim = self.params.limits
-        if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
-            return NackCode.OUT_OF_RANGE  # too soft to stop within the travel
+        refusal = self._travel_refusal(profile, "a_max_dps2")
+        if refusal is not None:
+            return refusal  # too soft to stop within the travel
         if self._mode == "step":
             self._mode, self._kind = "plan", kind
             self._move_limits = (self.v_max_dps, a_max)
@@ -695,35 +837,51 @@ class Firmware:
         self._target_deg = profile.p1
         return None
 
-    def _cmd_set_gains(self, m: SetGains) -> NackCode | None:
-        if not _finite(m.kp, m.ki, m.kd):
-            return NackCode.NOT_FINITE
+    def _travel_refusal(self, profile: Any, field: str | None) -> _Refusal | None:
+        """``NackCode.TRAVEL`` naming ``field`` and the travel end ``profile`` would cross
+        (``safety.travel_refusal``), or None if it stays within the travel."""
+        lim = self.params.limits
+        if not safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
+            return None
+        _, hi = safety.profile_extent(profile)
+        end = lim.travel_max_deg if hi > max(lim.travel_max_deg, profile.p0) else lim.travel_min_deg
+        return NackCode.TRAVEL, field, end
+
+    def _cmd_set_gains(self, m: SetGains) -> _Refusal | None:
         loop = Loop(m.loop)
         kp_name, ki_name = _LOOP_GAINS[loop]
-        if m.kp < 0.0 or m.ki < 0.0 or m.kd != 0.0 or (ki_name is None and m.ki != 0.0):
-            return NackCode.OUT_OF_RANGE  # no D terms, no position integrator
+        # No D terms in these loops, no integrator in the position loop: those are [0, 0].
+        refusal = _check_ranges([
+            ("kp", m.kp, 0.0, math.inf),
+            ("ki", m.ki, 0.0, math.inf if ki_name is not None else 0.0),
+            ("kd", m.kd, 0.0, 0.0),
+        ])  # fmt: skip
+        if refusal is not None:
+            return refusal
         new = {kp_name: float(m.kp)}
         if ki_name is not None:
             new[ki_name] = float(m.ki)
         trial = {k: _first(v) for k, v in self.law.gains.items()}
         trial.update(new)
         if self._gain_check(self.params, trial) is not None:
-            return NackCode.UNSTABLE_GAINS
+            return NackCode.UNSTABLE_GAINS, None, 0.0
         self.law.set_gains(**new)
         return None
 
-    def _cmd_set_limits(self, m: SetLimits) -> NackCode | None:
-        values = (m.v_max_dps, m.a_max_dps2, m.current_limit_a, m.following_error_deg)
-        if not _finite(*values):
-            return NackCode.NOT_FINITE
+    def _cmd_set_limits(self, m: SetLimits) -> _Refusal | None:
         s = self.params.safety
-        if not (
-            0.0 < m.v_max_dps < s.over_speed_dps
-            and 0.0 < m.a_max_dps2
-            and 0.0 < m.current_limit_a < s.over_current_a
-            and 0.0 < m.following_error_deg
-        ):
-            return NackCode.OUT_OF_RANGE
+        # 0 keeps the present trip threshold; the clamp may not exceed the trip.
+        trip_a = m.over_current_trip_a if m.over_current_trip_a != 0.0 else self._oc_thr_a
+        refusal = _check_ranges([
+            ("v_max_dps", m.v_max_dps, MIN_POSITIVE, s.over_speed_dps),
+            ("a_max_dps2", m.a_max_dps2, MIN_POSITIVE, math.inf),
+            ("current_limit_a", m.current_limit_a, MIN_POSITIVE,
+             trip_a if math.isfinite(trip_a) else math.inf),
+            ("following_error_deg", m.following_error_deg, MIN_POSITIVE, math.inf),
+            ("over_current_trip_a", trip_a, MIN_POSITIVE, s.over_current_a),
+        ])  # fmt: skip
+        if refusal is not None:
+            return refusal
         v_max, a_max = float(m.v_max_dps), float(m.a_max_dps2)
         if self._mode == "plan" and self._moving:
             # Limits lowered below those of the move in progress: replan the rest of it from
@@ -737,24 +895,33 @@ class Firmware:
                     profile = planner.command(self.tick * self.dt_s, self._target_deg,
                                               v_max=new_v, a_max=new_a, j_max=j_max)  # fmt: skip
                 except ValueError:
-                    return NackCode.OUT_OF_RANGE
-                lim = self.params.limits
-                if safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
-                    return NackCode.OUT_OF_RANGE  # the move could not brake within the travel
+                    return NackCode.OUT_OF_RANGE, None, 0.0
+                refusal = self._travel_refusal(profile, None)
+                if refusal is not None:
+                    return refusal  # the move could not brake within the travel
                 self._planners[self._kind] = planner
                 self._move_limits = (new_v, new_a)
         self.v_max_dps, self.a_max_dps2 = v_max, a_max
         self.current_limit_a = float(m.current_limit_a)
         self.following_error_deg = float(m.following_error_deg)
+        self._oc_thr_a = float(trip_a)
         if self._mode == "step":
             self._v_clamp_dps = min(self._v_clamp_dps, v_max)
         else:
             self._v_clamp_dps = v_max
         return None
 
-    def _cmd_clear_fault(self, m: ClearFault) -> NackCode | None:
-        if (self._fault != 0).any():
+    @property
+    def over_current_trip_a(self) -> float:
+        """The over-current trip threshold in A (``SetLimits.over_current_trip_a``)."""
+        return self._oc_thr_a
+
+    def _cmd_clear_fault(self, m: ClearFault) -> _Refusal | None:
+        # Without a latched fault: ACKed, nothing changes (the bridge stays as it is).
+        if (self._fault != 0).any() or (self._flags != 0).any():
             self._fault[:] = 0
+            self._flags[:] = 0
+            self._fault_info.clear()
             self._flags_version += 1
             self._fault_s = 0
             self._oc_ticks[:] = 0
@@ -762,10 +929,10 @@ class Firmware:
             self._disable()
         return None
 
-    def _cmd_set_enable(self, m: SetEnable) -> NackCode | None:
+    def _cmd_set_enable(self, m: SetEnable) -> _Refusal | None:
         if m.enable:
             if (self._fault != 0).all():
-                return NackCode.FAULT_ACTIVE
+                return NackCode.FAULT_ACTIVE, None, 0.0
             if np.array_equal(self._enabled, self._fault == 0):
                 return None  # already enabled: the motion in progress goes on undisturbed
             self._enable()
@@ -773,9 +940,10 @@ class Firmware:
             self._disable()
         return None
 
-    def _cmd_set_telemetry(self, m: SetTelemetry) -> NackCode | None:
-        if not 0 <= m.decimation <= 65535:
-            return NackCode.OUT_OF_RANGE
+    def _cmd_set_telemetry(self, m: SetTelemetry) -> _Refusal | None:
+        if 0 < m.decimation < self._auto_decimation:
+            # Refused, not raised: the PC learns the floor (HelloReply states it too).
+            return NackCode.TOO_LOW, "decimation", float(self._auto_decimation)
         self._set_decimation(m.decimation)
         return None
 
@@ -786,6 +954,9 @@ class Firmware:
 
     # ------------------------------------------------------------------ transmit
     def _transmit(self, tx_free: int) -> bytes:
+        hb = self._heartbeat_ticks
+        if hb and self.tick % hb == 0:
+            self._queue(self.link_status())
         replies = self._replies
         dec = self._decimation
         if not replies and dec == 1:  # the common case: one telemetry frame per tick
@@ -824,9 +995,11 @@ class Firmware:
         pos, vel = float(p[P_POS, 0]), float(p[P_VEL, 0])
         cur, duty = float(p[P_IMEAS, 0]), float(p[P_DUTY, 0])
         state, fault = self._state0(), int(self._fault[0])
+        if not self._enabled[0]:
+            duty = 0.0  # the bridge is off for the next period, whatever the law last said
         return frame.encode_telemetry_fields(
             self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
-            state, fault,
+            state, fault, int(self._flags[0]) if fault else 0,
         )  # fmt: skip
 
 
@@ -849,6 +1022,19 @@ def _any_trip(
         ):
             return True
     return False
+
+
+def _check_ranges(checks: list[tuple[str, float, float, float]]) -> _Refusal | None:
+    """The first ``(name, value, low, high)`` whose value is not finite or not in
+    ``[low, high]``, as a refusal; None if all pass."""
+    for name, value, low, high in checks:
+        if not math.isfinite(value):
+            return NackCode.NOT_FINITE, name, 0.0
+        if value < low:
+            return NackCode.TOO_LOW, name, low
+        if value > high:
+            return NackCode.TOO_HIGH, name, high
+    return None
 
 
 def _first(x: Any) -> float:

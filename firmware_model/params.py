@@ -355,13 +355,15 @@ class TelemetryParams(_Checked):
 
     ``decimation`` is the requested rate (1 = every tick, 0 = off); the firmware raises it
     automatically when a telemetry frame per tick does not fit ``baud`` (8N1, 10 bits per
-    byte) with ``reply_reserve`` of the link kept free for replies.
+    byte) with ``reply_reserve`` of the link kept free for replies. ``heartbeat_s`` is the
+    period of the board's ``BoardHeartbeat`` (0 = none).
     """
 
     decimation: int = _f(1, _irng(0, 65535))
     baud: int = _f(460_800, _irng(1200, 12_000_000))
     reply_reserve: float = _f(0.2, _rng(0.0, 0.9))
-    reply_queue_frames: int = _f(32, _irng(1, 1024))
+    reply_queue_frames: int = _f(32, _irng(1, 255))
+    heartbeat_s: float = _f(0.2, _rng(0.0, 60.0))
 
 
 @dataclass(frozen=True)

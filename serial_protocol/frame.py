@@ -1,4 +1,5 @@
-"""Frame codec of the PC link: ``encode(msg, seq) -> bytes`` and an incremental ``Decoder``.
+"""Frame codec of the PC link, protocol v2: ``encode(msg, seq) -> bytes`` and an
+incremental ``Decoder``.
 
 No I/O here (Klipper's ``msgproto.py`` against ``serialhdl.py``). The layout, specified in
 full in ``docs/protocol.md``::
@@ -10,7 +11,7 @@ full in ``docs/protocol.md``::
     4       1     seq   sender's frame counter, +1 per frame, wraps at 256
     5       1     hdr   CRC-8/SMBUS (poly 0x07, init 0x00) of bytes 2..4
     6       len   payload, little-endian
-    6+len   2     CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF) of bytes 2..5+len, LE
+    6+len   4     CRC-32/ISO-HDLC (zlib's crc32) of bytes 2..5+len, little-endian
 
 Scaling on the wire: positions (deg) and velocities (deg/s) in telemetry and replies are
 int32 in units of 1e-4 (0.1 m°, finer than the axis encoder step of 0.27 m°); currents are
@@ -20,28 +21,35 @@ travel and be NACKed); the target of a ``Move`` is int32 in 1e-4 deg.
 Resynchronisation: after a failed header check, an over-long length or a bad CRC the
 decoder backs up to the byte after the failed sync and hunts again; it never skips the
 claimed length, so any intact frame after garbage is recovered, and a fake header can hold
-a good frame back by at most ``MAX_FRAME_BYTES - 1`` bytes of stream.
+a good frame back by at most ``MAX_FRAME_BYTES - 1`` bytes of stream, or until the
+receiver sees ``RX_SILENCE_S`` of silence and calls ``Decoder.flush()``.
 """
 
 from __future__ import annotations
 
 import math
 import struct
-from binascii import crc_hqx
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, NoReturn
+from zlib import crc32 as _zlib_crc32
 
 import numpy as np
 
 from serial_protocol.messages import (
+    NO_FIELD,
     Ack,
+    BoardHeartbeat,
     ClearFault,
     Fault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -64,32 +72,40 @@ from serial_protocol.messages import (
 )
 
 __all__ = [
+    "CRC_BYTES",
     "HEADER_BYTES",
     "MAX_FRAME_BYTES",
     "MAX_PAYLOAD_BYTES",
     "OVERHEAD_BYTES",
+    "RX_SILENCE_S",
     "SYNC",
     "TELEMETRY_FRAME_BYTES",
     "Decoder",
     "DecoderStats",
+    "WireField",
     "crc8",
-    "crc16",
+    "crc32",
     "decode_payload",
     "encode",
     "encode_payload",
     "encode_telemetry_fields",
+    "field_index",
+    "field_name",
     "frame_bytes",
     "frame_raw",
     "payload_bytes",
     "payload_size_of_type",
+    "wire_fields",
 ]
 
 SYNC = b"\xa5\x5a"
 HEADER_BYTES = 6  # sync(2) len type seq hdr
-CRC_BYTES = 2
+CRC_BYTES = 4
 OVERHEAD_BYTES = HEADER_BYTES + CRC_BYTES
 MAX_PAYLOAD_BYTES = 64
 MAX_FRAME_BYTES = MAX_PAYLOAD_BYTES + OVERHEAD_BYTES
+#: A receiver discards a partial frame after this long without a byte (docs section 3).
+RX_SILENCE_S = 0.02
 
 # Wire scaling (value on the wire = round(value_in_unit * scale)).
 POS_SCALE = 10_000.0  # 1 LSB = 1e-4 deg
@@ -119,9 +135,10 @@ def crc8(data: bytes) -> int:
     return crc
 
 
-def crc16(data: bytes) -> int:
-    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection); check 0x29B1."""
-    return crc_hqx(data, 0xFFFF)
+def crc32(data: bytes, value: int = 0) -> int:
+    """CRC-32/ISO-HDLC (poly 0x04C11DB7 reflected, init and xorout 0xFFFFFFFF: zlib's and
+    Ethernet's); check ``crc32(b"123456789") = 0xCBF43926``. ``value`` continues a CRC."""
+    return _zlib_crc32(data, value)
 
 
 def frame_raw(msg_type: int, payload: bytes, seq: int) -> bytes:
@@ -136,29 +153,247 @@ def frame_raw(msg_type: int, payload: bytes, seq: int) -> bytes:
         raise ValueError(f"msg_type = {msg_type}, seq = {seq}: each must be 0..255")
     head = bytes((len(payload), msg_type, seq))
     body = head + bytes((crc8(head),)) + payload
-    return SYNC + body + crc_hqx(body, 0xFFFF).to_bytes(2, "little")
+    return SYNC + body + _zlib_crc32(body).to_bytes(4, "little")
 
 
 # ------------------------------------------------------------------ message table
 #
-# One row per message: payload struct format (without '<'), the names of the fields in
-# wire order, a function message -> tuple of wire values, a function tuple -> message.
+# One row per message: its fields in wire order, each with the wire type, the scaling or
+# enumeration, the unit and (for what a PC sends) the documented range. The struct format,
+# the conversions and the tables of docs/protocol.md are all derived from these rows.
+
+_WIRE_FMT = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "i32": "i", "f32": "f"}
+_WIRE_RANGE = {
+    "u8": (0, 0xFF),
+    "u16": (0, 0xFFFF),
+    "u32": (0, 0xFFFFFFFF),
+    "i16": (-(2**15), 2**15 - 1),
+    "i32": (-(2**31), 2**31 - 1),
+}
+_F32_MAX = 3.4028234663852886e38
 
 
-def _pos(value_deg: float) -> int:
-    return round(value_deg * POS_SCALE)
+@dataclass(frozen=True)
+class WireField:
+    """One field of a message on the wire.
+
+    ``name`` is the dataclass attribute; ``wire`` one of u8 u16 u32 i16 i32 f32; ``scale``
+    the fixed-point factor (wire = round(value * scale)); ``enum`` the ``IntEnum`` of a
+    code field (``bool`` for a 0/1 byte); ``wrap`` that the value is taken modulo 2^32;
+    ``unit`` and ``doc`` are what the spec prints.
+    """
+
+    name: str
+    wire: str
+    unit: str = ""
+    doc: str = ""
+    scale: float | None = None
+    enum: type | None = None
+    wrap: bool = False
+
+    @property
+    def fmt(self) -> str:
+        return _WIRE_FMT[self.wire]
+
+
+def _f(name: str, wire: str, unit: str = "", doc: str = "", **kw: Any) -> WireField:
+    return WireField(name, wire, unit, doc, **kw)
+
+
+_CMD_ID = _f("cmd_id", "u16", "", "chosen by the PC, echoed in the answer")
+_SESSION = _f("session", "u16", "", "the session opened by `Hello` (1..65535)")
+_POS = {"scale": POS_SCALE}
+_VEL = {"scale": VEL_SCALE}
+_TICK = _f("tick", "u32", "tick", "servo tick count (500 Hz), modulo 2^32", wrap=True)
+_STATE_F = _f("state", "u8", "", "`State` code", enum=State)
+_FAULT_F = _f("fault", "u8", "", "`Fault` code of the first latched fault", enum=Fault)
+_FLAGS_F = _f("fault_flags", "u32", "", "latched faults, `FaultFlag` bits")
+_GAINS_F = (
+    _f("loop", "u8", "", "`Loop` code", enum=Loop),
+    _f("kp", "f32", "loop units", "proportional gain (units: section 4.3)"),
+    _f("ki", "f32", "loop units", "integral gain"),
+    _f("kd", "f32", "loop units", "derivative gain (these loops are PI: 0)"),
+)
+_LIMITS_F = (
+    _f("v_max_dps", "f32", "deg/s", "velocity limit of moves and Stop"),
+    _f("a_max_dps2", "f32", "deg/s²", "acceleration limit of moves and Stop"),
+    _f("current_limit_a", "f32", "A", "clamp of the current reference (never trips)"),
+    _f("following_error_deg", "f32", "deg", "following-error trip threshold"),
+    _f("over_current_trip_a", "f32", "A", "over-current trip threshold"),
+)
+
+
+@dataclass(frozen=True)
+class _Row:
+    cls: type
+    fields: tuple[WireField, ...]
+
+
+_ROWS: tuple[_Row, ...] = (
+    _Row(
+        Hello,
+        (
+            _CMD_ID,
+            _f("session", "u16", "", "the session to open, 1..65535 (0 is refused)"),
+            _f("version_min", "u8", "", "oldest protocol version the PC speaks"),
+            _f("version_max", "u8", "", "newest protocol version the PC speaks"),
+        ),
+    ),
+    _Row(Heartbeat, (_CMD_ID, _SESSION)),
+    _Row(
+        Move,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("target_deg", "i32", "deg", "1 LSB = 1e-4 deg", **_POS),
+            _f("v_max_dps", "f32", "deg/s", "peak velocity of the move"),
+            _f("a_max_dps2", "f32", "deg/s²", "peak acceleration of the move"),
+            _f("j_max_dps3", "f32", "deg/s³", "peak jerk (SCURVE only, else ignored)"),
+            _f("profile", "u8", "", "`Profile` code", enum=Profile),
+        ),
+    ),
+    _Row(Stop, (_CMD_ID, _SESSION, _f("a_max_dps2", "f32", "deg/s²", "0 = `Limits.a_max_dps2`"))),
+    _Row(
+        SetEnable, (_CMD_ID, _SESSION, _f("enable", "u8", "", "0 = disable, 1 = enable", enum=bool))
+    ),
+    _Row(ClearFault, (_CMD_ID, _SESSION)),
+    _Row(SetGains, (_CMD_ID, _SESSION, *_GAINS_F)),
+    _Row(GetGains, (_CMD_ID, _SESSION, _GAINS_F[0])),
+    _Row(SetLimits, (_CMD_ID, _SESSION, *_LIMITS_F)),
+    _Row(GetLimits, (_CMD_ID, _SESSION)),
+    _Row(GetStatus, (_CMD_ID, _SESSION)),
+    _Row(
+        SetTelemetry,
+        (_CMD_ID, _SESSION, _f("decimation", "u16", "ticks", "ticks per telemetry frame; 0 = off")),
+    ),
+    _Row(GetFault, (_CMD_ID, _SESSION, _f("bit", "u8", "", "`FaultFlag` bit number, 0..31"))),
+    _Row(
+        HelloReply,
+        (
+            _CMD_ID,
+            _f("session", "u16", "", "the session opened (the Hello's)"),
+            _f("protocol_version", "u8", "", "version chosen: 2 for this document"),
+            _f("fw_major", "u8", "", "firmware version"),
+            _f("fw_minor", "u8", "", "firmware version"),
+            _f("fw_patch", "u8", "", "firmware version"),
+            _f("tick_hz", "u16", "Hz", "servo rate"),
+            _f("counts_per_rev", "u16", "counts", "encoder counts per motor revolution"),
+            _f("command_mask", "u32", "", "bit t set: command type t is supported"),
+            _f("max_payload_bytes", "u8", "bytes", "longest payload the board accepts"),
+            _f("rx_buffer_bytes", "u16", "bytes", "board receive buffer per servo tick"),
+            _f("reply_queue_frames", "u8", "frames", "answers the board queues"),
+            _f("telemetry_min_decimation", "u16", "ticks", "smallest decimation accepted"),
+            _f("heartbeat_ms", "u16", "ms", "period of `BoardHeartbeat`; 0 = none"),
+            _f("watchdog_ms", "u16", "ms", "command watchdog; 0 = off"),
+            _f("rx_silence_ms", "u16", "ms", "silence that discards a partial frame"),
+            _f("baud", "u32", "baud", "UART rate the board's telemetry budget assumes"),
+        ),
+    ),
+    _Row(
+        Telemetry,
+        (
+            _TICK,
+            _f("sp_pos_deg", "i32", "deg", "setpoint position, 1 LSB = 1e-4 deg", **_POS),
+            _f("sp_vel_dps", "i32", "deg/s", "setpoint velocity, 1 LSB = 1e-4 deg/s", **_VEL),
+            _f("pos_deg", "i32", "deg", "measured position, 1 LSB = 1e-4 deg", **_POS),
+            _f("vel_dps", "i32", "deg/s", "estimated velocity, 1 LSB = 1e-4 deg/s", **_VEL),
+            _f("current_a", "i16", "A", "motor current, 1 LSB = 1 mA", scale=CURRENT_SCALE),
+            _f("duty", "i16", "", "PWM duty, 1 LSB = 1e-4 (±10000 = ±100 %)", scale=DUTY_SCALE),
+            _STATE_F,
+            _FAULT_F,
+            _FLAGS_F,
+        ),
+    ),
+    _Row(
+        Ack,
+        (_CMD_ID, _f("msg_type", "u8", "", "type byte of the command answered")),
+    ),
+    _Row(
+        Nack,
+        (
+            _CMD_ID,
+            _f("msg_type", "u8", "", "type byte of the command answered"),
+            _f("code", "u8", "", "`NackCode`", enum=NackCode),
+            _f("field", "u8", "", "index of the refused field; 255 = none"),
+            _f("limit", "f32", "field's unit", "bound broken (TOO_HIGH, TOO_LOW), else 0"),
+        ),
+    ),
+    _Row(
+        FaultReport,
+        (
+            _TICK,
+            _f("fault", "u8", "", "`Fault` code of the fault that tripped", enum=Fault),
+            _f("value", "f32", "fault's unit", "measured value that tripped it"),
+            _FLAGS_F,
+            _f("threshold", "f32", "fault's unit", "the threshold it crossed"),
+        ),
+    ),
+    _Row(Gains, (_CMD_ID, *_GAINS_F)),
+    _Row(
+        Limits,
+        (
+            _CMD_ID,
+            *_LIMITS_F,
+            _f("travel_min_deg", "f32", "deg", "lowest `Move` target (read-only)"),
+            _f("travel_max_deg", "f32", "deg", "highest `Move` target (read-only)"),
+            _f("over_speed_dps", "f32", "deg/s", "over-speed trip; ceiling of v_max (read-only)"),
+            _f("over_current_max_a", "f32", "A", "ceiling of over_current_trip_a (read-only)"),
+        ),
+    ),
+    _Row(
+        Status,
+        (
+            _CMD_ID,
+            _TICK,
+            _STATE_F,
+            _FAULT_F,
+            _f("pos_deg", "i32", "deg", "measured position, 1 LSB = 1e-4 deg", **_POS),
+            _f("vel_dps", "i32", "deg/s", "estimated velocity, 1 LSB = 1e-4 deg/s", **_VEL),
+            _f("target_deg", "i32", "deg", "target of the move, 1 LSB = 1e-4 deg", **_POS),
+            _FLAGS_F,
+            _f("session", "u16", "", "the board's current session (0 = none)"),
+        ),
+    ),
+    _Row(
+        BoardHeartbeat,
+        (
+            _TICK,
+            _f("session", "u16", "", "the board's current session (0 = none)"),
+            _STATE_F,
+            _FLAGS_F,
+            _f("rx_frames", "u32", "frames", "good frames received"),
+            _f("rx_crc_errors", "u32", "frames", "candidate frames with a bad CRC"),
+            _f("rx_header_errors", "u32", "", "sync pairs with a bad header"),
+            _f("rx_bytes_dropped", "u32", "bytes", "bytes discarded outside good frames"),
+            _f("rx_seq_gaps", "u32", "", "good frames whose seq was not the last + 1"),
+            _f("rx_overflow_bytes", "u32", "bytes", "bytes lost to a full receive buffer"),
+            _f("rx_silence_discards", "u32", "", "partial frames discarded after silence"),
+            _f("rx_nacked", "u32", "frames", "commands answered with a Nack"),
+            _f("tx_telemetry_dropped", "u32", "frames", "telemetry frames not sent"),
+        ),
+    ),
+    _Row(
+        FaultInfo,
+        (
+            _CMD_ID,
+            _f("bit", "u8", "", "`FaultFlag` bit number asked about"),
+            _f("latched", "u8", "", "1 if the flag is latched", enum=bool),
+            _f("tick", "u32", "tick", "tick it tripped (0 if not latched)", wrap=True),
+            _f("value", "f32", "fault's unit", "measured value that tripped it"),
+            _f("threshold", "f32", "fault's unit", "the threshold it crossed"),
+        ),
+    ),
+)
 
 
 def _lookup(enum: type) -> dict[int, object]:
+    if enum is bool:
+        return {0: False, 1: True}
     return {int(member): member for member in enum}
 
 
-_PROFILE = _lookup(Profile)
-_LOOP = _lookup(Loop)
 _STATE = _lookup(State)
 _FAULT = _lookup(Fault)
-_NACK = _lookup(NackCode)
-_BOOL = {0: False, 1: True}
 
 
 def _telemetry_from_wire(t: tuple) -> Telemetry:
@@ -173,159 +408,115 @@ def _telemetry_from_wire(t: tuple) -> Telemetry:
         t[6] / DUTY_SCALE,
         _STATE[t[7]],
         _FAULT[t[8]],
+        t[9],
     )
 
 
-@dataclass(frozen=True)
-class _Row:
-    cls: type
-    fmt: str
-    to_wire: Callable[[object], tuple]
-    from_wire: Callable[[tuple], object]
+def _enum_to_wire(table: dict[int, object]) -> Callable[[Any], int]:
+    def to_wire(v: Any) -> int:
+        return int(table[v])  # type: ignore[call-overload]
+
+    return to_wire
 
 
-_ROWS: tuple[_Row, ...] = (
-    _Row(Hello, "", lambda m: (), lambda t: Hello()),
-    _Row(
-        Move,
-        "HifffB",
-        lambda m: (
-            m.cmd_id,
-            _pos(m.target_deg),
-            m.v_max_dps,
-            m.a_max_dps2,
-            m.j_max_dps3,
-            m.profile,
-        ),
-        lambda t: Move(t[0], t[1] / POS_SCALE, t[2], t[3], t[4], _PROFILE[t[5]]),
-    ),
-    _Row(Stop, "Hf", lambda m: (m.cmd_id, m.a_max_dps2), lambda t: Stop(t[0], t[1])),
-    _Row(
-        SetGains,
-        "HBfff",
-        lambda m: (m.cmd_id, m.loop, m.kp, m.ki, m.kd),
-        lambda t: SetGains(t[0], _LOOP[t[1]], t[2], t[3], t[4]),
-    ),
-    _Row(GetGains, "HB", lambda m: (m.cmd_id, m.loop), lambda t: GetGains(t[0], _LOOP[t[1]])),
-    _Row(
-        SetLimits,
-        "Hffff",
-        lambda m: (m.cmd_id, m.v_max_dps, m.a_max_dps2, m.current_limit_a, m.following_error_deg),
-        lambda t: SetLimits(*t),
-    ),
-    _Row(GetLimits, "H", lambda m: (m.cmd_id,), lambda t: GetLimits(t[0])),
-    _Row(GetStatus, "H", lambda m: (m.cmd_id,), lambda t: GetStatus(t[0])),
-    _Row(ClearFault, "H", lambda m: (m.cmd_id,), lambda t: ClearFault(t[0])),
-    _Row(
-        SetEnable,
-        "HB",
-        lambda m: (m.cmd_id, 1 if m.enable else 0),
-        lambda t: SetEnable(t[0], _BOOL[t[1]]),
-    ),
-    _Row(
-        SetTelemetry,
-        "HH",
-        lambda m: (m.cmd_id, m.decimation),
-        lambda t: SetTelemetry(t[0], t[1]),
-    ),
-    _Row(
-        HelloReply,
-        "BBBBHH",
-        lambda m: (
-            m.protocol_version,
-            m.fw_major,
-            m.fw_minor,
-            m.fw_patch,
-            m.tick_hz,
-            m.counts_per_rev,
-        ),
-        lambda t: HelloReply(*t),
-    ),
-    _Row(
-        Telemetry,
-        "IiiiihhBB",
-        lambda m: (
-            m.tick & 0xFFFFFFFF,
-            round(m.sp_pos_deg * POS_SCALE),
-            round(m.sp_vel_dps * VEL_SCALE),
-            round(m.pos_deg * POS_SCALE),
-            round(m.vel_dps * VEL_SCALE),
-            round(m.current_a * CURRENT_SCALE),
-            round(m.duty * DUTY_SCALE),
-            m.state,
-            m.fault,
-        ),
-        lambda t: _telemetry_from_wire(t),
-    ),
-    _Row(Ack, "HB", lambda m: (m.cmd_id, m.msg_type), lambda t: Ack(t[0], t[1])),
-    _Row(
-        Nack,
-        "HBB",
-        lambda m: (m.cmd_id, m.msg_type, m.code),
-        lambda t: Nack(t[0], t[1], _NACK[t[2]]),
-    ),
-    _Row(
-        FaultReport,
-        "IBf",
-        lambda m: (m.tick & 0xFFFFFFFF, m.fault, m.value),
-        lambda t: FaultReport(t[0], _FAULT[t[1]], t[2]),
-    ),
-    _Row(
-        Gains,
-        "HBfff",
-        lambda m: (m.cmd_id, m.loop, m.kp, m.ki, m.kd),
-        lambda t: Gains(t[0], _LOOP[t[1]], t[2], t[3], t[4]),
-    ),
-    _Row(
-        Limits,
-        "Hffff",
-        lambda m: (m.cmd_id, m.v_max_dps, m.a_max_dps2, m.current_limit_a, m.following_error_deg),
-        lambda t: Limits(*t),
-    ),
-    _Row(
-        Status,
-        "HIBBiii",
-        lambda m: (
-            m.cmd_id,
-            m.tick & 0xFFFFFFFF,
-            m.state,
-            m.fault,
-            round(m.pos_deg * POS_SCALE),
-            round(m.vel_dps * VEL_SCALE),
-            round(m.target_deg * POS_SCALE),
-        ),
-        lambda t: Status(
-            t[0],
-            t[1],
-            _STATE[t[2]],
-            _FAULT[t[3]],
-            t[4] / POS_SCALE,
-            t[5] / VEL_SCALE,
-            t[6] / POS_SCALE,
-        ),
-    ),
-)
+def _to_wire_of(fields: tuple[WireField, ...]) -> Callable[[Any], tuple]:
+    convs = []
+    for f in fields:
+        if f.scale is not None:
+            convs.append((f.name, lambda v, k=f.scale: round(v * k)))
+        elif f.enum is bool:
+            convs.append((f.name, {False: 0, True: 1}.__getitem__))  # 2 is not a bool
+        elif f.enum is not None:
+            # an undefined code raises KeyError: encode names the field
+            convs.append((f.name, _enum_to_wire(_lookup(f.enum))))
+        elif f.wrap:
+            convs.append((f.name, lambda v: int(v) & 0xFFFFFFFF))
+        else:
+            convs.append((f.name, None))
+
+    def to_wire(m: Any) -> tuple:
+        return tuple(getattr(m, n) if c is None else c(getattr(m, n)) for n, c in convs)
+
+    return to_wire
+
+
+class _BadCode(Exception):
+    """An enum byte that is not defined (carries the field index)."""
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+
+
+def _from_wire_of(cls: type, fields: tuple[WireField, ...]) -> Callable[[tuple], Any]:
+    convs = []
+    for index, f in enumerate(fields):
+        if f.scale is not None:
+            convs.append((f.name, index, None, f.scale))
+        elif f.enum is not None:
+            convs.append((f.name, index, _lookup(f.enum), None))
+        else:
+            convs.append((f.name, index, None, None))
+
+    def from_wire(t: tuple) -> Any:
+        kw = {}
+        for (name, index, table, scale), w in zip(convs, t, strict=True):
+            if table is not None:
+                try:
+                    w = table[w]
+                except KeyError:
+                    raise _BadCode(index) from None
+            elif scale is not None:
+                w = w / scale
+            kw[name] = w
+        return cls(**kw)
+
+    return from_wire
 
 
 class _Codec:
     """Precompiled framing of one message type."""
 
-    __slots__ = ("msg_type", "payload", "frame", "hdr_by_seq", "to_wire", "from_wire", "fmt")
+    __slots__ = ("cls", "msg_type", "payload", "frame", "hdr_by_seq", "to_wire", "from_wire",
+                 "fmt", "fields")  # fmt: skip
 
     def __init__(self, row: _Row) -> None:
+        self.cls = row.cls
         self.msg_type = int(row.cls.MSG_TYPE)
-        self.fmt = row.fmt
-        self.payload = struct.Struct("<" + row.fmt)
+        self.fields = row.fields
+        self.fmt = "".join(f.fmt for f in row.fields)
+        self.payload = struct.Struct("<" + self.fmt)
         # sync, len, type, seq, hdr, then the payload: one pack call per frame
-        self.frame = struct.Struct("<BBBBBB" + row.fmt)
+        self.frame = struct.Struct("<BBBBBB" + self.fmt)
         state = _T8[_T8[self.payload.size] ^ self.msg_type]
         self.hdr_by_seq = bytes(_T8[state ^ seq] for seq in range(256))
-        self.to_wire = row.to_wire
-        self.from_wire = row.from_wire
+        self.to_wire = _to_wire_of(row.fields)
+        self.from_wire = _from_wire_of(row.cls, row.fields)
 
 
 _BY_CLASS: dict[type, _Codec] = {row.cls: _Codec(row) for row in _ROWS}
 _BY_TYPE: dict[int, _Codec] = {codec.msg_type: codec for codec in _BY_CLASS.values()}
+
+
+def wire_fields(cls: type) -> tuple[WireField, ...]:
+    """The fields of message class ``cls`` in wire order (``Nack.field`` indexes them)."""
+    return _BY_CLASS[cls].fields
+
+
+def field_index(cls: type, name: str) -> int:
+    """Index of field ``name`` in the wire layout of ``cls`` (the value of ``Nack.field``)."""
+    for index, f in enumerate(_BY_CLASS[cls].fields):
+        if f.name == name:
+            return index
+    raise KeyError(f"{cls.__name__} has no field {name!r}")
+
+
+def field_name(msg_type: int, index: int) -> str | None:
+    """Name of field ``index`` of type byte ``msg_type`` (None if there is no such field):
+    what a client prints for ``Nack.field``."""
+    codec = _BY_TYPE.get(msg_type)
+    if codec is None or not 0 <= index < len(codec.fields):
+        return None
+    return codec.fields[index].name
 
 
 def frame_bytes(cls: type) -> int:
@@ -341,10 +532,10 @@ _TELEMETRY_HDR = _TELEMETRY.hdr_by_seq
 _TELEMETRY_LEN = _TELEMETRY.payload.size
 _TELEMETRY_TYPE = _TELEMETRY.msg_type
 _TELEMETRY_UNPACK = _TELEMETRY.payload.unpack_from
-# Per sequence number: the 6 header bytes of a telemetry frame and the CRC-16 register after
+# Per sequence number: the 6 header bytes of a telemetry frame and the CRC-32 register after
 # bytes 2..5 of it (the frame's CRC continues over the payload from there).
 _TELEMETRY_HEADS = tuple(
-    (head, crc_hqx(head[2:], 0xFFFF))
+    (head, _zlib_crc32(head[2:]))
     for head in (
         bytes((0xA5, 0x5A, _TELEMETRY_LEN, _TELEMETRY_TYPE, seq, _TELEMETRY_HDR[seq]))
         for seq in range(256)
@@ -372,12 +563,12 @@ def encode_telemetry_fields(
     duty: float,
     state: int,
     fault: int,
+    fault_flags: int = 0,
 ) -> bytes:
     """Frame one telemetry message from its fields, without building a ``Telemetry``.
 
-    The same bytes as ``encode(Telemetry(tick, ...), seq)`` for the firmware's hot path
-    (0.6 us; building the ``Telemetry`` first adds 0.75 us): values beyond the wire range
-    saturate, NaN raises ``ValueError``.
+    The same bytes as ``encode(Telemetry(tick, ...), seq)`` for the firmware's hot path:
+    values beyond the wire range saturate, NaN raises ``ValueError``.
     """
     seq &= 0xFF
     try:
@@ -391,15 +582,17 @@ def encode_telemetry_fields(
             round(duty * DUTY_SCALE),
             state,
             fault,
+            fault_flags,
         )
     except (struct.error, ValueError, OverflowError, TypeError):
         msg = Telemetry(
-            tick, sp_pos_deg, sp_vel_dps, pos_deg, vel_dps, current_a, duty, state, fault
-        )  # type: ignore[arg-type]
+            tick, sp_pos_deg, sp_vel_dps, pos_deg, vel_dps, current_a, duty, state, fault,  # type: ignore[arg-type]
+            fault_flags,
+        )  # fmt: skip
         return _encode_telemetry_saturated(msg, seq)
     # The header of each sequence number and the CRC over it are constants (_TELEMETRY_HEADS).
     head, crc = _TELEMETRY_HEADS[seq]
-    return head + payload + crc_hqx(payload, crc).to_bytes(2, "little")
+    return head + payload + _zlib_crc32(payload, crc).to_bytes(4, "little")
 
 
 def _encode_telemetry(msg: Telemetry, seq: int) -> bytes:
@@ -414,6 +607,7 @@ def _encode_telemetry(msg: Telemetry, seq: int) -> bytes:
         msg.duty,
         msg.state,
         msg.fault,
+        msg.fault_flags,
     )
 
 
@@ -428,19 +622,64 @@ def _encode_telemetry_saturated(msg: Telemetry, seq: int) -> bytes:
     try:
         head = _TELEMETRY.frame.pack(
             0xA5, 0x5A, _TELEMETRY_LEN, _TELEMETRY_TYPE, seq, _TELEMETRY_HDR[seq],
-            *wire, msg.state, msg.fault,
+            *wire, msg.state, msg.fault, msg.fault_flags,
         )  # fmt: skip
-    except struct.error as exc:
-        raise ValueError(f"cannot encode {msg!r}: {exc}") from None
-    return head + crc_hqx(head[2:], 0xFFFF).to_bytes(2, "little")
+    except struct.error:
+        _diagnose(_TELEMETRY, msg)
+        raise
+    return head + _zlib_crc32(head[2:]).to_bytes(4, "little")
+
+
+def _diagnose(codec: _Codec, msg: Any) -> NoReturn:
+    """Raise ``ValueError`` naming the first field of ``msg`` that cannot go on the wire."""
+    cls = type(msg).__name__
+    for f in codec.fields:
+        value = getattr(msg, f.name)
+        what = f"{cls}.{f.name} = {value!r}"
+        if f.enum is bool:
+            if not isinstance(value, bool | int) or value not in (0, 1):
+                raise ValueError(f"{what}: must be true or false")
+            continue
+        if f.enum is not None:
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int)
+                or value not in _lookup(f.enum)
+            ):
+                names = ", ".join(m.name for m in f.enum)
+                raise ValueError(f"{what}: must be one of {names}")
+            continue
+        if f.wire == "f32":
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{what}: must be a number")
+            if math.isfinite(value) and abs(value) > _F32_MAX:
+                raise ValueError(f"{what}: beyond the float32 range ±3.4e38")
+            continue
+        low, high = _WIRE_RANGE[f.wire]
+        if f.scale is not None:
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(f"{what}: must be a number")
+            if not math.isfinite(value) or not low <= round(value * f.scale) <= high:
+                raise ValueError(
+                    f"{what} {f.unit}: beyond the wire range {low / f.scale:.10g} .. "
+                    f"{high / f.scale:.10g} {f.unit} (1 LSB = {1 / f.scale:g} {f.unit})"
+                )
+            continue
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{what}: must be an integer")
+        if f.wrap:
+            continue
+        if not low <= value <= high:
+            raise ValueError(f"{what}: must be an integer in {low} .. {high} ({f.wire})")
+    raise ValueError(f"cannot encode {msg!r}")
 
 
 def encode(msg: Message, seq: int) -> bytes:
     """Frame ``msg`` with sequence number ``seq`` (taken modulo 256).
 
     Telemetry values beyond their wire range saturate; for every other message a value that
-    does not fit its wire field raises ``ValueError`` naming the message and the value. NaN
-    and infinity are legal in float32 fields (the receiver NACKs them).
+    does not fit its wire field raises ``ValueError`` naming the message, the field and the
+    value. NaN and infinity are legal in float32 fields (the receiver NACKs them).
     """
     codec = _BY_CLASS.get(type(msg))
     if codec is None:
@@ -453,13 +692,13 @@ def encode(msg: Message, seq: int) -> bytes:
             0xA5, 0x5A, codec.payload.size, codec.msg_type, seq, codec.hdr_by_seq[seq],
             *codec.to_wire(msg),
         )  # fmt: skip
-    except (struct.error, ValueError, OverflowError, TypeError) as exc:
-        raise ValueError(f"cannot encode {msg!r}: {exc}") from None
-    return head + crc_hqx(head[2:], 0xFFFF).to_bytes(2, "little")
+    except (struct.error, ValueError, OverflowError, TypeError, KeyError):
+        _diagnose(codec, msg)
+    return head + _zlib_crc32(head[2:]).to_bytes(4, "little")
 
 
 def payload_bytes(cls: type) -> int:
-    """Payload length in bytes of a message of class ``cls`` (the frame adds 8)."""
+    """Payload length in bytes of a message of class ``cls`` (the frame adds 10)."""
     return _BY_CLASS[cls].payload.size
 
 
@@ -481,23 +720,33 @@ def encode_payload(msg: Message) -> tuple[int, bytes]:
         return codec.msg_type, _encode_telemetry(msg, 0)[HEADER_BYTES:-CRC_BYTES]  # type: ignore[arg-type]
     try:
         return codec.msg_type, codec.payload.pack(*codec.to_wire(msg))
-    except (struct.error, ValueError, OverflowError, TypeError) as exc:
-        raise ValueError(f"cannot encode {msg!r}: {exc}") from None
+    except (struct.error, ValueError, OverflowError, TypeError, KeyError):
+        _diagnose(codec, msg)
+        raise
+
+
+def _decode_at(msg_type: int, seq: int, buf: Any, start: int, length: int) -> Message | Malformed:
+    """The message in ``buf[start:start + length]`` of type ``msg_type``, or ``Malformed``.
+
+    The extension rule: a payload longer than the type's is decoded from its first bytes
+    and the rest is ignored (fields a newer peer appended); a shorter one is BAD_LENGTH.
+    """
+    codec = _BY_TYPE.get(msg_type)
+    field = NO_FIELD
+    if codec is not None and codec.payload.size <= length:
+        try:
+            return codec.from_wire(codec.payload.unpack_from(buf, start))
+        except _BadCode as exc:
+            code, field = NackCode.OUT_OF_RANGE, exc.index
+    else:
+        code = NackCode.UNKNOWN_TYPE if codec is None else NackCode.BAD_LENGTH
+    cmd_id = buf[start] | (buf[start + 1] << 8) if length >= 2 else 0
+    return Malformed(msg_type, seq, cmd_id, code, field)
 
 
 def decode_payload(msg_type: int, payload: bytes, seq: int = 0) -> Message | Malformed:
     """Decode one unframed payload; a payload that cannot be decoded gives ``Malformed``."""
-    codec = _BY_TYPE.get(msg_type)
-    length = len(payload)
-    if codec is not None and codec.payload.size == length:
-        try:
-            return codec.from_wire(codec.payload.unpack(payload))
-        except KeyError:
-            code = NackCode.OUT_OF_RANGE
-    else:
-        code = NackCode.UNKNOWN_TYPE if codec is None else NackCode.BAD_LENGTH
-    cmd_id = payload[0] | (payload[1] << 8) if length >= 2 else 0
-    return Malformed(msg_type, seq, cmd_id, code)
+    return _decode_at(msg_type, seq, payload, 0, len(payload))
 
 
 # ------------------------------------------------------------------ decoder
@@ -513,7 +762,8 @@ class DecoderStats:
     frames with a good header and a bad CRC; ``resyncs``: times sync was regained after
     discarding bytes; ``bytes_dropped``: bytes discarded outside good frames;
     ``seq_gaps``: good frames whose sequence number was not the previous one + 1;
-    ``frames_missed``: the sum of those gaps (an estimate of the frames lost, modulo 256).
+    ``frames_missed``: the sum of those gaps (an estimate of the frames lost, modulo 256);
+    ``partial_discards``: times ``flush`` gave up on held-back bytes (the silence rule).
     """
 
     frames: int
@@ -524,6 +774,7 @@ class DecoderStats:
     bytes_dropped: int
     seq_gaps: int
     frames_missed: int
+    partial_discards: int = 0
 
 
 class Decoder:
@@ -547,6 +798,7 @@ class Decoder:
         self.bytes_dropped = 0
         self.seq_gaps = 0
         self.frames_missed = 0
+        self.partial_discards = 0
 
     @property
     def pending_bytes(self) -> int:
@@ -564,6 +816,7 @@ class Decoder:
             self.bytes_dropped,
             self.seq_gaps,
             self.frames_missed,
+            self.partial_discards,
         )
 
     def feed(self, data: bytes) -> list[Message | Malformed]:
@@ -599,11 +852,16 @@ class Decoder:
     def flush(self) -> list[Message | Malformed]:
         """Give up on a partial frame (the line went idle) and rescan what is held back.
 
-        A host calls this after an inter-frame timeout so that a fake header in trailing
-        garbage cannot hold anything back; bytes that still cannot form a frame are dropped.
+        A receiver calls this after ``RX_SILENCE_S`` without a byte (the silence rule of
+        docs/protocol.md section 3) so that a false header left by a dropped sender cannot
+        hold anything back; a whole frame found in the held-back bytes is still returned,
+        bytes that cannot form a frame are dropped (``bytes_dropped``). Counts one
+        ``partial_discards`` if anything was held back.
         """
         buf = self._buf
         out: list[Message | Malformed] = []
+        if buf:
+            self.partial_discards += 1
         while buf:
             # the head of buf is now an incomplete candidate (or a lone 0xA5): drop one byte
             self.bytes_dropped += 1
@@ -651,7 +909,7 @@ class Decoder:
             end = i + OVERHEAD_BYTES + length
             if end > n:
                 return i
-            if crc_hqx(buf[i + 2 : end - 2], 0xFFFF) != buf[end - 2] | (buf[end - 1] << 8):
+            if _zlib_crc32(buf[i + 2 : end - 4]) != int.from_bytes(buf[end - 4 : end], "little"):
                 self.crc_errors += 1
                 self.bytes_dropped += 1
                 self._hunting = True
@@ -668,7 +926,7 @@ class Decoder:
                 self.frames_missed += (seq - last - 1) & 0xFF
             self.last_seq = seq
             msg_type = buf[i + 3]
-            if msg_type == _TELEMETRY_TYPE and length == _TELEMETRY_LEN:
+            if msg_type == _TELEMETRY_TYPE and length >= _TELEMETRY_LEN:
                 # Fast path of _decode for the frame the board sends every tick.
                 if offsets is not None:
                     if buf[i + _STATE_AT] in _STATE and buf[i + _FAULT_AT] in _FAULT:
@@ -690,24 +948,18 @@ class Decoder:
     def _decode(
         self, msg_type: int, seq: int, buf: bytearray, start: int, length: int
     ) -> Message | Malformed:
-        codec = _BY_TYPE.get(msg_type)
-        if codec is not None and codec.payload.size == length:
-            try:
-                return codec.from_wire(codec.payload.unpack_from(buf, start))
-            except KeyError:
-                code = NackCode.OUT_OF_RANGE
-        else:
-            code = NackCode.UNKNOWN_TYPE if codec is None else NackCode.BAD_LENGTH
-        self.malformed += 1
-        cmd_id = buf[start] | (buf[start + 1] << 8) if length >= 2 else 0
-        return Malformed(msg_type, seq, cmd_id, code)
+        msg = _decode_at(msg_type, seq, buf, start, length)
+        if type(msg) is Malformed:
+            self.malformed += 1
+        return msg
 
 
-# The telemetry payload as a numpy record (the struct format "<IiiiihhBB"), and where its
+# The telemetry payload as a numpy record (the struct format "<IiiiihhBBI"), and where its
 # state and fault bytes sit in a frame.
 _TELEMETRY_DTYPE = np.dtype(
     [("tick", "<u4"), ("sp_pos", "<i4"), ("sp_vel", "<i4"), ("pos", "<i4"), ("vel", "<i4"),
-     ("current", "<i2"), ("duty", "<i2"), ("state", "u1"), ("fault", "u1")]
+     ("current", "<i2"), ("duty", "<i2"), ("state", "u1"), ("fault", "u1"),
+     ("fault_flags", "<u4")]
 )  # fmt: skip
 _STATE_AT = HEADER_BYTES + _TELEMETRY_DTYPE.fields["state"][1]
 _FAULT_AT = HEADER_BYTES + _TELEMETRY_DTYPE.fields["fault"][1]
@@ -736,6 +988,7 @@ def _telemetry_columns(buf: bytearray, offsets: list[int]) -> dict[str, np.ndarr
         columns[name] = rec[field] / scale
     columns["state"] = rec["state"].astype(np.int64)
     columns["fault"] = rec["fault"].astype(np.int64)
+    columns["fault_flags"] = rec["fault_flags"].astype(np.int64)
     return columns
 
 

@@ -1,27 +1,40 @@
-"""The PC side: send a command, wait for its answer with timeout and retries, collect
-telemetry. Works over any ``Link`` (``transport.SerialLink``, ``can_link.CanLink``), against
-the simulator (``turntable-sim serve --pty``) or a real board.
+"""The PC side: open a session, send a command, wait for its answer with timeout and
+retries, keep the board's watchdog fed, collect telemetry. Works over any ``Link``
+(``transport.SerialLink``, ``can_link.CanLink``), against the simulator (``turntable-sim
+serve --pty``) or a real board.
 
-Expected outcomes are data: a refused command returns the ``Nack``. Only a board that does
-not answer at all (after the retries) raises ``LinkTimeout``.
+Expected outcomes are data: a refused command returns the ``Nack`` (``nack_text`` says why
+in words). Only a board that does not answer at all (after the retries) raises
+``LinkTimeout``; a value the wire cannot carry raises ``ValueError`` naming the field.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import random
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from serial_protocol.exceptions import LinkTimeout
+from serial_protocol.exceptions import LinkError, LinkTimeout
+from serial_protocol.frame import field_name
 from serial_protocol.messages import (
+    COMMAND_TYPES,
+    PROTOCOL_VERSION,
+    PROTOCOL_VERSION_MIN,
     Ack,
+    BoardHeartbeat,
     ClearFault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -29,7 +42,9 @@ from serial_protocol.messages import (
     Malformed,
     Message,
     Move,
+    MsgType,
     Nack,
+    NackCode,
     Profile,
     SetEnable,
     SetGains,
@@ -41,14 +56,56 @@ from serial_protocol.messages import (
 )
 from serial_protocol.transport import Link
 
-__all__ = ["ACK_TIMEOUT_S", "RETRIES", "BoardClient", "ClientStats"]
+__all__ = ["ACK_TIMEOUT_S", "RETRIES", "BoardClient", "ClientStats", "nack_text"]
 
 #: How long the PC waits for an answer before it retries (docs/protocol.md, section 5).
 ACK_TIMEOUT_S = 0.1
 #: Retries after the first attempt, each with the same cmd_id.
 RETRIES = 3
 
-_REPLIES = (Ack, Nack, Gains, Limits, Status)
+_REPLIES = (Ack, Nack, Gains, Limits, Status, FaultInfo)
+_COMMANDS = frozenset(COMMAND_TYPES)
+# What a NackCode says about the refused field or command, for nack_text.
+_NACK_WORDS = {
+    NackCode.UNKNOWN_TYPE: "unknown message type",
+    NackCode.BAD_LENGTH: "payload too short for its type",
+    NackCode.NOT_FINITE: "is not finite",
+    NackCode.OUT_OF_RANGE: "is not a defined value",
+    NackCode.UNSTABLE_GAINS: "the board's stability check refuses these gains",
+    NackCode.FAULT_ACTIVE: "a fault is latched (clear it, then enable)",
+    NackCode.DISABLED: "the bridge is disabled (enable it first)",
+    NackCode.NOT_A_COMMAND: "a board-to-PC message type was sent to the board",
+    NackCode.NO_SESSION: "no session is open (send Hello first)",
+    NackCode.STALE_SESSION: "another session has taken over the board",
+    NackCode.UNSUPPORTED_VERSION: "the board speaks another protocol version",
+    NackCode.BUSY: "refused while the board is busy",
+}
+
+
+def nack_text(nack: Nack, command: object | None = None) -> str:
+    """One line saying why the board refused a command, e.g. ``"Move refused: v_max_dps =
+    2000 > limit 990 (TOO_HIGH)"``. ``command`` (the message sent) supplies the value."""
+    try:
+        type_name = MsgType(nack.msg_type).name
+    except ValueError:
+        type_name = f"type 0x{nack.msg_type:02X}"
+    if command is not None and type(command).MSG_TYPE == nack.msg_type:
+        type_name = type(command).__name__
+    name = field_name(nack.msg_type, nack.field)
+    code = NackCode(nack.code)
+    value = getattr(command, name, None) if (command is not None and name) else None
+    shown = f"{name} = {value:g}" if isinstance(value, float | int) else (name or "")
+    if code is NackCode.TOO_HIGH:
+        why = f"{shown} > limit {nack.limit:g}"
+    elif code is NackCode.TOO_LOW:
+        why = f"{shown} < limit {nack.limit:g}"
+    elif code is NackCode.UNSUPPORTED_VERSION:
+        why = f"the board speaks protocol version {nack.limit:g}"
+    elif code in (NackCode.NOT_FINITE, NackCode.OUT_OF_RANGE) and name:
+        why = f"{shown} {_NACK_WORDS[code]}"
+    else:
+        why = _NACK_WORDS.get(code, code.name) + (f" ({name})" if name else "")
+    return f"{type_name} refused: {why} ({code.name})"
 
 
 @dataclass(slots=True)
@@ -64,15 +121,26 @@ class ClientStats:
     fault_reports: int = 0
     malformed: int = 0
     stale_replies: int = 0  # answers to a cmd_id no longer awaited (late after a retry)
+    sessions: int = 0  # sessions opened (Hello answered)
+    heartbeats_sent: int = 0
+    board_heartbeats: int = 0
 
 
 class BoardClient:
     """Talk to a board over ``link``.
 
-    ``ack_timeout_s`` and ``retries``: see docs/protocol.md, section 5. ``on_message`` is
-    called with every message that is not the awaited answer (telemetry, fault reports, ...)
-    as it arrives; telemetry is also kept in ``telemetry`` (at most ``keep_telemetry``
-    frames, the oldest dropped first) and fault reports in ``fault_reports``.
+    The first command opens a session (``open()``: a ``Hello`` with a fresh random session
+    id; the board forgets the previous session's duplicate memory, so nothing this client
+    sends can be taken for a repeat of another program's command). Every command carries
+    the session; a retry re-sends the same message (same ``cmd_id``, docs section 5).
+
+    ``ack_timeout_s`` and ``retries``: see docs/protocol.md, section 5. ``heartbeat_s``:
+    while the client waits or collects, it sends a ``Heartbeat`` when nothing was sent for
+    that long (None: a quarter of the board's watchdog time, none if the watchdog is off).
+    ``on_message`` is called with every message that is not the awaited answer (telemetry,
+    fault reports, board heartbeats, ...) as it arrives; telemetry is also kept in
+    ``telemetry`` (at most ``keep_telemetry`` frames, the oldest dropped first), fault
+    reports in ``fault_reports`` and the last board heartbeat in ``last_heartbeat``.
     """
 
     def __init__(
@@ -82,11 +150,14 @@ class BoardClient:
         retries: int = RETRIES,
         on_message: Callable[[Message | Malformed], None] | None = None,
         keep_telemetry: int = 1_000_000,
+        heartbeat_s: float | None = None,
     ) -> None:
         if not ack_timeout_s > 0:
             raise ValueError(f"ack_timeout_s = {ack_timeout_s!r}: must be > 0")
         if retries < 0:
             raise ValueError(f"retries = {retries!r}: must be >= 0")
+        if heartbeat_s is not None and not heartbeat_s > 0:
+            raise ValueError(f"heartbeat_s = {heartbeat_s!r}: must be > 0")
         self.link = link
         self.ack_timeout_s = ack_timeout_s
         self.retries = retries
@@ -94,8 +165,58 @@ class BoardClient:
         self.telemetry: deque[Telemetry] = deque(maxlen=keep_telemetry)
         self.fault_reports: list[FaultReport] = []
         self.last_status: Status | None = None
+        self.last_heartbeat: BoardHeartbeat | None = None
+        self.hello_reply: HelloReply | None = None
+        self.last_command: Message | None = None  # the last command sent (for nack_text)
+        self.session = 0  # 0 until open() succeeds
         self.stats = ClientStats()
         self._cmd_id = 0
+        self._heartbeat_s = heartbeat_s
+        self._last_sent_wall_s = -math.inf
+
+    # ------------------------------------------------------------------ session
+
+    def open(self, session: int | None = None) -> HelloReply | Nack:
+        """Open a session (``Hello``); return the ``HelloReply`` (the board's version,
+        capabilities and limits), or the ``Nack`` of a board that speaks no version this
+        client does. ``session``: the id to use (default: random, 1..65535, different from
+        this client's previous one)."""
+        if session is None:
+            session = self.session
+            while session == self.session:
+                session = random.randint(1, 0xFFFF)
+        if not 1 <= session <= 0xFFFF:
+            raise ValueError(f"session = {session!r}: must be 1..65535")
+        msg = Hello(self.next_cmd_id(), PROTOCOL_VERSION_MIN, PROTOCOL_VERSION, session)
+        cmd_id = msg.cmd_id
+        reply = self._exchange(
+            msg, lambda m: isinstance(m, HelloReply | Nack) and m.cmd_id == cmd_id
+        )
+        if isinstance(reply, HelloReply):
+            self.session = reply.session
+            self.hello_reply = reply
+            self.stats.sessions += 1
+            if self._heartbeat_s is None and reply.watchdog_ms:
+                self._heartbeat_s = reply.watchdog_ms / 4000.0
+        else:
+            self.stats.nacks += 1
+        return reply  # type: ignore[return-value]
+
+    def hello(self) -> HelloReply:
+        """Open a session and return the board's ``HelloReply``; a board that refuses the
+        session (no common protocol version) raises ``LinkError`` saying why."""
+        reply = self.open()
+        if isinstance(reply, Nack):
+            raise LinkError(nack_text(reply))
+        return reply
+
+    def heartbeat(self) -> None:
+        """Send a ``Heartbeat`` now (feeds the board's command watchdog; not answered)."""
+        if not self.session:
+            self.hello()
+        self.link.send(Heartbeat(0, self.session))
+        self._last_sent_wall_s = time.monotonic()
+        self.stats.heartbeats_sent += 1
 
     # ------------------------------------------------------------------ commands
 
@@ -104,16 +225,19 @@ class BoardClient:
         self._cmd_id = self._cmd_id % 0xFFFF + 1
         return self._cmd_id
 
-    def hello(self) -> HelloReply:
-        """Ask the board who it is."""
-        reply = self._exchange(Hello(), lambda m: isinstance(m, HelloReply))
-        assert isinstance(reply, HelloReply)
-        return reply
-
-    def command(self, msg: Message) -> Ack | Nack | Gains | Limits | Status:
-        """Send ``msg`` (which carries its ``cmd_id``) and return the board's answer,
-        retrying with the same ``cmd_id``; ``LinkTimeout`` if it never answers."""
+    def command(self, msg: Message) -> Ack | Nack | Gains | Limits | Status | FaultInfo:
+        """Send ``msg`` (which carries its ``cmd_id``) in this client's session (opened
+        first if need be) and return the board's answer, retrying with the same message;
+        ``LinkTimeout`` if it never answers, ``ValueError`` naming the field if a value
+        cannot go on the wire."""
+        if type(msg) not in _COMMANDS or isinstance(msg, Hello | Heartbeat):
+            raise TypeError(f"not a command with an answer: {msg!r}")
+        if not self.session:
+            self.hello()
+        if msg.session != self.session:  # type: ignore[union-attr]
+            msg = dataclasses.replace(msg, session=self.session)  # type: ignore[type-var]
         cmd_id = msg.cmd_id  # type: ignore[union-attr]
+        self.last_command = msg
         reply = self._exchange(msg, lambda m: isinstance(m, _REPLIES) and m.cmd_id == cmd_id)
         if isinstance(reply, Ack):
             self.stats.acks += 1
@@ -154,11 +278,14 @@ class BoardClient:
         a_max_dps2: float,
         current_limit_a: float,
         following_error_deg: float,
+        over_current_trip_a: float = 0.0,
     ) -> Ack | Nack:
-        """Set the motion limits and trip thresholds."""
+        """Set the motion limits, the current clamp and the trip thresholds
+        (``over_current_trip_a`` 0: keep the board's)."""
         msg = SetLimits(
-            self.next_cmd_id(), v_max_dps, a_max_dps2, current_limit_a, following_error_deg
-        )
+            self.next_cmd_id(), v_max_dps, a_max_dps2, current_limit_a, following_error_deg,
+            over_current_trip_a,
+        )  # fmt: skip
         return self.command(msg)  # type: ignore[return-value]
 
     def get_limits(self) -> Limits | Nack:
@@ -181,6 +308,10 @@ class BoardClient:
         """Telemetry every ``decimation`` ticks (0 = off)."""
         msg = SetTelemetry(self.next_cmd_id(), decimation)
         return self.command(msg)  # type: ignore[return-value]
+
+    def get_fault(self, bit: int) -> FaultInfo | Nack:
+        """Details of fault flag ``bit`` (0..31): latched, tick, value and threshold."""
+        return self.command(GetFault(self.next_cmd_id(), bit))  # type: ignore[return-value]
 
     def wait_status(
         self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05
@@ -210,7 +341,7 @@ class BoardClient:
             left_s = end_wall_s - time.monotonic()
             if left_s <= 0:
                 return got
-            for msg in self.link.poll(min(left_s, 0.05)):
+            for msg in self._poll(min(left_s, 0.05)):
                 self._dispatch(msg)
                 got.append(msg)
 
@@ -224,7 +355,7 @@ class BoardClient:
             left_s = end_wall_s - time.monotonic()
             if left_s <= 0:
                 return None
-            batch = self.link.poll(min(left_s, 0.05))
+            batch = self._poll(min(left_s, 0.05))
             for k, msg in enumerate(batch):
                 self._dispatch(msg)
                 if predicate(msg):
@@ -232,12 +363,23 @@ class BoardClient:
                         self._dispatch(later)
                     return msg
 
+    def _poll(self, timeout_s: float) -> list[Message | Malformed]:
+        """``link.poll``, with a heartbeat first when the board's watchdog wants one."""
+        hb = self._heartbeat_s
+        if hb is not None and self.session and time.monotonic() - self._last_sent_wall_s >= hb:
+            self.heartbeat()
+            timeout_s = min(timeout_s, hb)
+        elif hb is not None:
+            timeout_s = min(timeout_s, hb)
+        return self.link.poll(timeout_s)
+
     def _exchange(self, msg: Message, is_answer: Callable[[Message | Malformed], bool]) -> Message:
         self.stats.commands += 1
         for attempt in range(self.retries + 1):
             if attempt:
                 self.stats.retries += 1
             self.link.send(msg)
+            self._last_sent_wall_s = time.monotonic()
             end_wall_s = time.monotonic() + self.ack_timeout_s
             while True:
                 left_s = end_wall_s - time.monotonic()
@@ -264,6 +406,9 @@ class BoardClient:
         elif isinstance(msg, FaultReport):
             self.stats.fault_reports += 1
             self.fault_reports.append(msg)
+        elif isinstance(msg, BoardHeartbeat):
+            self.stats.board_heartbeats += 1
+            self.last_heartbeat = msg
         elif isinstance(msg, Malformed):
             self.stats.malformed += 1
         elif isinstance(msg, _REPLIES):

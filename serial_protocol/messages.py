@@ -18,19 +18,25 @@ to reject, on the wire, with a NACK.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import IntEnum, IntFlag
 from typing import ClassVar
 
 __all__ = [
     "Ack",
+    "BoardHeartbeat",
     "ClearFault",
+    "FAULT_FLAG",
     "Fault",
+    "FaultFlag",
+    "FaultInfo",
     "FaultReport",
     "Gains",
+    "GetFault",
     "GetGains",
     "GetLimits",
     "GetStatus",
     "Hello",
+    "Heartbeat",
     "HelloReply",
     "Limits",
     "Loop",
@@ -40,8 +46,10 @@ __all__ = [
     "MsgType",
     "Nack",
     "NackCode",
+    "NO_FIELD",
     "Profile",
     "PROTOCOL_VERSION",
+    "PROTOCOL_VERSION_MIN",
     "SetEnable",
     "SetGains",
     "SetLimits",
@@ -51,25 +59,31 @@ __all__ = [
     "Stop",
     "Telemetry",
     "COMMAND_TYPES",
+    "fault_flag_names",
 ]
 
-PROTOCOL_VERSION = 1
+PROTOCOL_VERSION = 2
+#: Oldest protocol version this code speaks (v1 framing is not compatible: see docs).
+PROTOCOL_VERSION_MIN = 2
 
 
 class MsgType(IntEnum):
-    """The type byte of a frame. PC → board below 0x80, board → PC from 0x80."""
+    """The type byte of a frame (protocol v2 numbering). PC -> board below 0x80, board ->
+    PC from 0x80."""
 
     HELLO = 0x01
-    MOVE = 0x02
-    STOP = 0x03
-    SET_GAINS = 0x04
-    GET_GAINS = 0x05
-    SET_LIMITS = 0x06
-    GET_LIMITS = 0x07
-    GET_STATUS = 0x08
-    CLEAR_FAULT = 0x09
-    SET_ENABLE = 0x0A
-    SET_TELEMETRY = 0x0B
+    HEARTBEAT = 0x02
+    MOVE = 0x03
+    STOP = 0x04
+    SET_ENABLE = 0x05
+    CLEAR_FAULT = 0x06
+    SET_GAINS = 0x07
+    GET_GAINS = 0x08
+    SET_LIMITS = 0x09
+    GET_LIMITS = 0x0A
+    GET_STATUS = 0x0B
+    SET_TELEMETRY = 0x0C
+    GET_FAULT = 0x0D
     HELLO_REPLY = 0x81
     TELEMETRY = 0x82
     ACK = 0x83
@@ -78,6 +92,8 @@ class MsgType(IntEnum):
     GAINS = 0x86
     LIMITS = 0x87
     STATUS = 0x88
+    BOARD_HEARTBEAT = 0x89
+    FAULT_INFO = 0x8A
 
 
 class Profile(IntEnum):
@@ -98,15 +114,27 @@ class Loop(IntEnum):
 
 
 class NackCode(IntEnum):
-    """Why the board refused a command (``Nack.code``)."""
+    """Why the board refused a command (``Nack.code``); ``Nack.field`` names the field."""
 
-    UNKNOWN_TYPE = 1
-    BAD_LENGTH = 2
-    NOT_FINITE = 3
-    OUT_OF_RANGE = 4
-    UNSTABLE_GAINS = 5
-    FAULT_ACTIVE = 6
-    DISABLED = 7
+    UNKNOWN_TYPE = 1  # type byte not defined (or not a command this board supports)
+    BAD_LENGTH = 2  # payload shorter than the type's length
+    NOT_FINITE = 3  # NaN or infinity in a float field
+    OUT_OF_RANGE = 4  # an enum or bool byte holds an undefined value
+    UNSTABLE_GAINS = 5  # the board's stability check refuses the gains
+    FAULT_ACTIVE = 6  # motion or enable refused while a fault is latched
+    DISABLED = 7  # motion refused while the bridge is disabled
+    NOT_A_COMMAND = 8  # a board -> PC type (0x80..0xFF) sent to the board
+    NO_SESSION = 9  # a command before any Hello
+    STALE_SESSION = 10  # a command whose session is not the board's current one
+    UNSUPPORTED_VERSION = 11  # Hello's version range excludes the board's (limit = it)
+    TOO_HIGH = 12  # field > limit
+    TOO_LOW = 13  # field < limit
+    BUSY = 14  # not now: e.g. a Move changing the profile kind while moving
+    TRAVEL = 15  # the trajectory asked for would leave the travel (limit = the end crossed)
+
+
+#: ``Nack.field`` when no single field is at fault (the whole command was refused).
+NO_FIELD = 0xFF
 
 
 class State(IntEnum):
@@ -120,7 +148,8 @@ class State(IntEnum):
 
 
 class Fault(IntEnum):
-    """Latched fault code (u8); ``NONE`` when no fault is active."""
+    """Fault code (u8): the first fault latched since the last ``ClearFault``, ``NONE``
+    when none is. All the latched faults are the bits of ``FaultFlag``."""
 
     NONE = 0
     OVER_CURRENT = 1
@@ -129,16 +158,77 @@ class Fault(IntEnum):
     ENCODER = 4
     WATCHDOG = 5
     TRAVEL = 6  # the estimated position beyond the travel by more than the margin
+    BRIDGE = 7
+
+
+class FaultFlag(IntFlag):
+    """Latched faults as a u32 bitfield, one byte per subsystem.
+
+    Byte 0 power stage, byte 1 motion, byte 2 position sensor, byte 3 link and system.
+    Undefined bits are reserved (a receiver shows them as ``bit N``, never rejects them).
+    """
+
+    OVER_CURRENT = 1 << 0  # power stage: |i| above the trip threshold
+    BRIDGE = 1 << 1  # power stage: driver fault reported on the IS pin
+    FOLLOWING_ERROR = 1 << 8  # motion: |setpoint - position| above following_error_deg
+    OVER_SPEED = 1 << 9  # motion: |velocity| above over_speed_dps
+    TRAVEL = 1 << 10  # motion: position outside the travel limits
+    ENCODER = 1 << 16  # sensor: implausible jump or stuck reading
+    WATCHDOG = 1 << 24  # link: no PC frame of the session within the watchdog time
+
+
+#: The flag bit of each fault code.
+FAULT_FLAG: dict[Fault, FaultFlag] = {
+    Fault.OVER_CURRENT: FaultFlag.OVER_CURRENT,
+    Fault.FOLLOWING_ERROR: FaultFlag.FOLLOWING_ERROR,
+    Fault.OVER_SPEED: FaultFlag.OVER_SPEED,
+    Fault.ENCODER: FaultFlag.ENCODER,
+    Fault.WATCHDOG: FaultFlag.WATCHDOG,
+    Fault.TRAVEL: FaultFlag.TRAVEL,
+    Fault.BRIDGE: FaultFlag.BRIDGE,
+}
+
+
+def fault_flag_names(flags: int) -> list[str]:
+    """Names of the bits set in ``flags`` (``"bit N"`` for a reserved bit)."""
+    names = []
+    for bit in range(32):
+        if flags >> bit & 1:
+            try:
+                names.append(FaultFlag(1 << bit).name or f"bit {bit}")
+            except ValueError:
+                names.append(f"bit {bit}")
+    return names
 
 
 # ---------------------------------------------------------------- PC -> board
+#
+# Every PC -> board message begins with ``cmd_id`` (u16) and ``session`` (u16) on the wire.
+# In the dataclasses ``session`` is the last field, with a default of 0, so that a message
+# can be built before a session exists; ``BoardClient`` stamps its session on it.
 
 
 @dataclass(frozen=True, slots=True)
 class Hello:
-    """Ask the board who it is; answered by ``HelloReply``."""
+    """Open a session: the board adopts ``session`` (non-zero), forgets the duplicate
+    memory of the previous session and answers ``HelloReply`` if its protocol version is
+    in ``[version_min, version_max]`` (else ``Nack UNSUPPORTED_VERSION``)."""
 
     MSG_TYPE: ClassVar[int] = MsgType.HELLO
+    cmd_id: int = 0
+    version_min: int = PROTOCOL_VERSION
+    version_max: int = PROTOCOL_VERSION
+    session: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Heartbeat:
+    """PC keep-alive: feeds the board's command watchdog. Not answered (NACKed only when
+    the session is not the current one)."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.HEARTBEAT
+    cmd_id: int = 0
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -155,27 +245,30 @@ class Move:
     a_max_dps2: float
     j_max_dps3: float = 0.0
     profile: Profile = Profile.TRAPEZOID
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
 class Stop:
-    """Decelerate to rest at ``a_max_dps2`` (0 means the configured a_max)."""
+    """Decelerate to rest at ``a_max_dps2`` (0 means the board's ``Limits.a_max_dps2``)."""
 
     MSG_TYPE: ClassVar[int] = MsgType.STOP
     cmd_id: int
     a_max_dps2: float = 0.0
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
 class SetGains:
-    """Set the PID gains of one loop (units of the loop's error → output)."""
+    """Set the PI gains of one loop (units of the loop's error -> output, docs section 4)."""
 
     MSG_TYPE: ClassVar[int] = MsgType.SET_GAINS
     cmd_id: int
     loop: Loop
     kp: float
     ki: float
-    kd: float
+    kd: float = 0.0
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -185,11 +278,17 @@ class GetGains:
     MSG_TYPE: ClassVar[int] = MsgType.GET_GAINS
     cmd_id: int
     loop: Loop
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
 class SetLimits:
-    """Set the motion limits and the trip thresholds."""
+    """Set the motion limits, the current clamp and the trip thresholds (all or none).
+
+    ``current_limit_a`` clamps the current reference (never trips); ``over_current_trip_a``
+    is the over-current trip threshold (must be >= the clamp). NaN for
+    ``over_current_trip_a`` is refused like any other field.
+    """
 
     MSG_TYPE: ClassVar[int] = MsgType.SET_LIMITS
     cmd_id: int
@@ -197,6 +296,8 @@ class SetLimits:
     a_max_dps2: float
     current_limit_a: float
     following_error_deg: float
+    over_current_trip_a: float = 0.0
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,6 +306,7 @@ class GetLimits:
 
     MSG_TYPE: ClassVar[int] = MsgType.GET_LIMITS
     cmd_id: int
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -213,14 +315,17 @@ class GetStatus:
 
     MSG_TYPE: ClassVar[int] = MsgType.GET_STATUS
     cmd_id: int
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
 class ClearFault:
-    """Clear a latched fault; the board goes to ``State.DISABLED`` (send ``SetEnable``)."""
+    """Clear the latched faults; the board goes to ``State.DISABLED`` (send ``SetEnable``).
+    Without a latched fault it is ACKed and changes nothing."""
 
     MSG_TYPE: ClassVar[int] = MsgType.CLEAR_FAULT
     cmd_id: int
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -230,6 +335,7 @@ class SetEnable:
     MSG_TYPE: ClassVar[int] = MsgType.SET_ENABLE
     cmd_id: int
     enable: bool
+    session: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -239,6 +345,18 @@ class SetTelemetry:
     MSG_TYPE: ClassVar[int] = MsgType.SET_TELEMETRY
     cmd_id: int
     decimation: int
+    session: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class GetFault:
+    """Ask about one fault flag (``bit`` 0..31 of ``FaultFlag``); answered by
+    ``FaultInfo``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.GET_FAULT
+    cmd_id: int
+    bit: int
+    session: int = 0
 
 
 # ---------------------------------------------------------------- board -> PC
@@ -246,15 +364,28 @@ class SetTelemetry:
 
 @dataclass(frozen=True, slots=True)
 class HelloReply:
-    """Who the board is: protocol and firmware versions, servo rate, encoder resolution."""
+    """Answer to ``Hello``: the session opened, the version chosen, who the board is and
+    what it can do (``command_mask`` bit t set: command type t is supported) and its
+    limits."""
 
     MSG_TYPE: ClassVar[int] = MsgType.HELLO_REPLY
+    cmd_id: int
+    session: int
     protocol_version: int
     fw_major: int
     fw_minor: int
     fw_patch: int
     tick_hz: int
     counts_per_rev: int
+    command_mask: int
+    max_payload_bytes: int
+    rx_buffer_bytes: int
+    reply_queue_frames: int
+    telemetry_min_decimation: int
+    heartbeat_ms: int
+    watchdog_ms: int
+    rx_silence_ms: int
+    baud: int
 
 
 @dataclass(frozen=True, slots=True)
@@ -262,7 +393,9 @@ class Telemetry:
     """One servo tick as the board saw it (sent every ``decimation`` ticks).
 
     ``sp_*`` is the planner's setpoint, the others are measured/estimated. ``duty`` is the
-    applied PWM duty in [-1, 1].
+    PWM duty in [-1, 1] the bridge applies for the next period (0 when the state is
+    ``DISABLED`` or ``FAULT``). ``fault`` is the first latched fault, ``fault_flags`` all
+    of them (``FaultFlag`` bits).
     """
 
     MSG_TYPE: ClassVar[int] = MsgType.TELEMETRY
@@ -275,6 +408,7 @@ class Telemetry:
     duty: float
     state: State
     fault: Fault
+    fault_flags: int
 
     def __init__(
         self,
@@ -287,11 +421,13 @@ class Telemetry:
         duty: float,
         state: State,
         fault: Fault,
+        fault_flags: int = 0,
     ) -> None:
         # Built every tick by the board and again by the PC: the dataclass's frozen __init__
-        # goes through object.__setattr__ per field (about 2 us for nine); writing the slots
+        # goes through object.__setattr__ per field (about 2 us for ten); writing the slots
         # through their descriptors builds the same immutable object in about a third.
-        s_tick, s_sp_pos, s_sp_vel, s_pos, s_vel, s_cur, s_duty, s_state, s_fault = _TEL_SLOTS
+        (s_tick, s_sp_pos, s_sp_vel, s_pos, s_vel, s_cur, s_duty, s_state, s_fault,
+         s_flags) = _TEL_SLOTS  # fmt: skip
         s_tick(self, tick)
         s_sp_pos(self, sp_pos_deg)
         s_sp_vel(self, sp_vel_dps)
@@ -301,6 +437,7 @@ class Telemetry:
         s_duty(self, duty)
         s_state(self, state)
         s_fault(self, fault)
+        s_flags(self, fault_flags)
 
 
 # slot descriptors of the class dataclass(slots=True) returned, in field order
@@ -318,24 +455,36 @@ class Ack:
 
 @dataclass(frozen=True, slots=True)
 class Nack:
-    """Command ``cmd_id`` of type ``msg_type`` was refused; nothing of it was applied."""
+    """Command ``cmd_id`` of type ``msg_type`` was refused; nothing of it was applied.
+
+    ``field`` is the index of the refused field in the command's wire layout (0 =
+    ``cmd_id``, 1 = ``session``, 2 = the first data field, ...), ``NO_FIELD`` (255) when no
+    single field is at fault. ``limit`` is the bound the field broke for ``TOO_HIGH`` and
+    ``TOO_LOW`` (in the field's unit), the board's version for ``UNSUPPORTED_VERSION``,
+    else 0.
+    """
 
     MSG_TYPE: ClassVar[int] = MsgType.NACK
     cmd_id: int
     msg_type: int
     code: NackCode
+    field: int = NO_FIELD
+    limit: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
 class FaultReport:
     """A fault tripped at ``tick``; ``value`` is the measured value that tripped it, in the
-    fault's unit (A for over-current, deg for following error, deg/s for over-speed, ticks
-    without a command for the watchdog, raw counts for the encoder)."""
+    fault's unit (A for over-current, deg for following error and travel, deg/s for
+    over-speed, ticks without a PC frame for the watchdog, raw counts for the encoder);
+    ``fault_flags`` all the faults latched now."""
 
     MSG_TYPE: ClassVar[int] = MsgType.FAULT_REPORT
     tick: int
     fault: Fault
     value: float
+    fault_flags: int = 0
+    threshold: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -352,7 +501,8 @@ class Gains:
 
 @dataclass(frozen=True, slots=True)
 class Limits:
-    """Reply to ``GetLimits``."""
+    """Reply to ``GetLimits``: the settable values and, read-only, the bounds the board
+    checks them and ``Move`` against."""
 
     MSG_TYPE: ClassVar[int] = MsgType.LIMITS
     cmd_id: int
@@ -360,11 +510,17 @@ class Limits:
     a_max_dps2: float
     current_limit_a: float
     following_error_deg: float
+    over_current_trip_a: float = 0.0
+    travel_min_deg: float = 0.0
+    travel_max_deg: float = 0.0
+    over_speed_dps: float = 0.0
+    over_current_max_a: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
 class Status:
-    """Reply to ``GetStatus``."""
+    """Reply to ``GetStatus``. ``target_deg`` is the target of the current or last move;
+    after ``SetEnable`` (before any move) the position held since the enable."""
 
     MSG_TYPE: ClassVar[int] = MsgType.STATUS
     cmd_id: int
@@ -374,6 +530,44 @@ class Status:
     pos_deg: float
     vel_dps: float
     target_deg: float
+    fault_flags: int = 0
+    session: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class BoardHeartbeat:
+    """Sent by the board every ``HelloReply.heartbeat_ms``: its state and the counters of
+    its receiver (each u32, wrapping), MAVLink HEARTBEAT + SYS_STATUS in one."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.BOARD_HEARTBEAT
+    tick: int
+    session: int
+    state: State
+    fault_flags: int
+    rx_frames: int
+    rx_crc_errors: int
+    rx_header_errors: int
+    rx_bytes_dropped: int
+    rx_seq_gaps: int
+    rx_overflow_bytes: int
+    rx_silence_discards: int
+    rx_nacked: int
+    tx_telemetry_dropped: int
+
+
+@dataclass(frozen=True, slots=True)
+class FaultInfo:
+    """Reply to ``GetFault``: whether flag ``bit`` is latched and, if so, the tick it
+    tripped, the measured value that tripped it and the threshold it crossed (fault units
+    as in ``FaultReport``; 0 when not latched)."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.FAULT_INFO
+    cmd_id: int
+    bit: int
+    latched: bool
+    tick: int
+    value: float
+    threshold: float
 
 
 # ---------------------------------------------------------------- decoder output
@@ -384,20 +578,22 @@ class Malformed:
     """A frame with a good CRC whose payload cannot be decoded.
 
     ``code`` is ``NackCode.UNKNOWN_TYPE`` (type byte not in ``MsgType``),
-    ``NackCode.BAD_LENGTH`` (payload length wrong for the type) or
-    ``NackCode.OUT_OF_RANGE`` (an enum or bool byte holds an undefined value).
-    ``cmd_id`` is the payload's first two bytes (little-endian) when it has them, else 0,
-    so that the board can NACK it.
+    ``NackCode.BAD_LENGTH`` (payload shorter than the type's) or
+    ``NackCode.OUT_OF_RANGE`` (an enum or bool byte holds an undefined value; ``field`` is
+    its index). ``cmd_id`` is the payload's first two bytes (little-endian) when it has
+    them, else 0, so that the board can NACK it.
     """
 
     msg_type: int
     seq: int
     cmd_id: int
     code: NackCode
+    field: int = NO_FIELD
 
 
 Message = (
     Hello
+    | Heartbeat
     | Move
     | Stop
     | SetGains
@@ -408,6 +604,7 @@ Message = (
     | ClearFault
     | SetEnable
     | SetTelemetry
+    | GetFault
     | HelloReply
     | Telemetry
     | Ack
@@ -416,11 +613,14 @@ Message = (
     | Gains
     | Limits
     | Status
+    | BoardHeartbeat
+    | FaultInfo
 )
 
 #: Message classes the PC sends to the board.
 COMMAND_TYPES: tuple[type, ...] = (
     Hello,
+    Heartbeat,
     Move,
     Stop,
     SetGains,
@@ -431,4 +631,5 @@ COMMAND_TYPES: tuple[type, ...] = (
     ClearFault,
     SetEnable,
     SetTelemetry,
+    GetFault,
 )

@@ -82,8 +82,11 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
         "a_max_dps2": (True, "float"),
         "current_limit_a": (True, "float"),
         "following_error_deg": (True, "float"),
+        "over_current_trip_a": (False, "float"),
     },
     "get_limits": {},
+    "get_fault": {"bit": (True, "int")},
+    "heartbeat": {},
     "get_status": {},
     "clear_fault": {},
     "set_enable": {"enable": (True, "bool")},
@@ -104,13 +107,19 @@ class ScriptedCommand:
     def get(self, key: str, default: Any = None) -> Any:
         return dict(self.fields).get(key, default)
 
-    def message(self, cmd_id: int) -> msg.Message | bytes:
-        """The wire message (or raw bytes for ``type = "raw"``) with ``cmd_id``."""
+    def message(self, cmd_id: int, session: int = 0) -> msg.Message | bytes:
+        """The wire message (or raw bytes for ``type = "raw"``) with ``cmd_id``, in
+        ``session`` (for ``hello``: the session it opens)."""
+        return self._message(cmd_id) if self.type == "raw" else dataclasses.replace(
+            self._message(cmd_id), session=session  # type: ignore[type-var]
+        )
+
+    def _message(self, cmd_id: int) -> msg.Message | bytes:
         f = dict(self.fields)
         if self.type == "raw":
             return bytes.fromhex(f["hex"])
         if self.type == "hello":
-            return msg.Hello()
+            return msg.Hello(cmd_id)
         if self.type == "move":
             target = f["target_deg"] if "target_deg" in f else f["target_mdeg"] / 1000.0
             return msg.Move(
@@ -134,9 +143,14 @@ class ScriptedCommand:
                 f["a_max_dps2"],
                 f["current_limit_a"],
                 f["following_error_deg"],
+                f.get("over_current_trip_a", 0.0),
             )
         if self.type == "get_limits":
             return msg.GetLimits(cmd_id)
+        if self.type == "get_fault":
+            return msg.GetFault(cmd_id, f["bit"])
+        if self.type == "heartbeat":
+            return msg.Heartbeat(cmd_id)
         if self.type == "get_status":
             return msg.GetStatus(cmd_id)
         if self.type == "clear_fault":

@@ -36,7 +36,7 @@ import numpy as np
 from firmware_model.firmware import SIGNAL_NAMES
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
-from serial_protocol.messages import Telemetry
+from serial_protocol.messages import Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection
 from sim.config import TABLES, BenchConfig, Experiment
 from sim.encoder import Encoder
@@ -516,6 +516,7 @@ def run(
     schedule = [(math.ceil(c.t_s / sim.dt_s - 1e-9), c) for c in exp.commands]
     seq = 0
     cmd_id = 0
+    session = 0  # the scripted PC opens session 1 before its first command
     nxt = 0
     every = max(1, n_ticks // 200)
     sim.reserve(n_ticks)
@@ -523,8 +524,14 @@ def run(
     while tick < n_ticks:
         while nxt < len(schedule) and schedule[nxt][0] <= tick:
             cmd = schedule[nxt][1]
+            if cmd.type != "raw" and (session == 0 or cmd.type == "hello"):
+                session = session % 0xFFFF + 1
+                if cmd.type != "hello":
+                    cmd_id = (cmd_id + 1) & 0xFFFF
+                    sim.pc_write(frame.encode(Hello(cmd_id, session=session), seq))
+                    seq = (seq + 1) & 0xFF
             cmd_id = (cmd_id + 1) & 0xFFFF
-            m = cmd.message(cmd_id)
+            m = cmd.message(cmd_id, session)
             if isinstance(m, bytes):
                 sim.pc_write(m)
             else:

@@ -26,9 +26,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from serial_protocol.exceptions import CommandError, LinkError, LinkTimeout
+from serial_protocol.frame import field_name
 from serial_protocol.messages import (
     Ack,
     Fault,
+    FaultInfo,
     FaultReport,
     Gains,
     HelloReply,
@@ -97,14 +99,22 @@ COMMANDS: dict[str, CommandSpec] = {
     ),
     "getgains": CommandSpec("getgains current|velocity|position", "read the gains of one loop"),
     "limits": CommandSpec(
-        "limits V_MAX_DPS A_MAX_DPS2 CURRENT_A FOLLOW_DEG",
-        "set the motion limits and the trip thresholds",
+        "limits V_MAX_DPS A_MAX_DPS2 CURRENT_A FOLLOW_DEG [TRIP_A]",
+        "set the motion limits, the current clamp and the trip thresholds",
+        "CURRENT_A clamps the current (never trips); TRIP_A is the over-current trip "
+        "threshold (absent or 0: keep the board's). Out-of-range values are refused, never "
+        "clipped.",
+    ),
+    "fault": CommandSpec(
+        "fault BIT", "details of fault flag BIT (0..31): tick, value and threshold"
     ),
     "getlimits": CommandSpec("getlimits", "read the motion limits and trip thresholds"),
     "telemetry": CommandSpec(
         "telemetry DECIMATION", "telemetry every DECIMATION ticks (1 = 500 Hz, 0 = off)"
     ),
-    "hello": CommandSpec("hello", "ask the board its protocol and firmware version"),
+    "hello": CommandSpec(
+        "hello", "open a new session: the board's protocol, firmware and capabilities"
+    ),
     "help": CommandSpec("help [COMMAND]", "list the commands, or explain one"),
     "quit": CommandSpec("quit", "end the session (also Ctrl-D)"),
 }
@@ -194,8 +204,13 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         return ParsedCommand(verb, lambda: client.get_gains(which), {"loop": which})
     if verb == "limits":
         names = ["v_max_dps", "a_max_dps2", "current_limit_a", "following_error_deg"]
-        values = numbers(names, 4)
+        values = numbers([*names, "over_current_trip_a"], 4)
         return ParsedCommand(verb, lambda: client.set_limits(**values), values)
+    if verb == "fault":
+        bit = numbers(["bit"], 1)["bit"]
+        if bit != int(bit) or not 0 <= bit <= 31:
+            raise CommandError(f"{text!r}: bit = {rest[0]} must be an integer 0..31")
+        return ParsedCommand(verb, lambda: client.get_fault(int(bit)), {"bit": int(bit)})
     if verb == "telemetry":
         value = numbers(["decimation"], 1)["decimation"]
         if value != int(value) or not 0 <= value <= 0xFFFF:
@@ -226,6 +241,13 @@ _NACK_WORDS = {
     NackCode.UNSTABLE_GAINS: "the board's stability check rejects these gains",
     NackCode.FAULT_ACTIVE: "a fault is latched (type 'clear' first)",
     NackCode.DISABLED: "the bridge is disabled (type 'enable' first)",
+    NackCode.NOT_A_COMMAND: "a board-to-PC message was sent to the board",
+    NackCode.NO_SESSION: "no session is open (type 'hello')",
+    NackCode.STALE_SESSION: "another program has opened a session since (type 'hello')",
+    NackCode.UNSUPPORTED_VERSION: "the board speaks another protocol version",
+    NackCode.TOO_HIGH: "a value is above its limit",
+    NackCode.TOO_LOW: "a value is below its limit",
+    NackCode.BUSY: "not while moving",
 }
 
 
@@ -236,21 +258,16 @@ def _g(value: Any) -> str:
 def _refused(reply: Nack, fields: dict[str, Any]) -> str:
     code = NackCode(reply.code) if reply.code in NackCode._value2member_map_ else reply.code
     reason = _NACK_WORDS.get(code, f"code {reply.code}")
-    # Protocol v2 names the refused field (and the limit it broke): render it if present.
-    name = getattr(reply, "field", None)
-    if isinstance(name, int) and not isinstance(name, bool):
-        names = list(fields)
-        name = names[name] if 0 <= name < len(names) else f"field {name}"
-    limit = getattr(reply, "limit", None)
-    if isinstance(name, str) and name:
-        what = f"{name} = {_g(fields[name])}" if name in fields else name
-        if limit is not None:
-            return f"refused: {what} exceeds the limit {_g(limit)}"
-        return f"refused: {what}: {reason}"
-    if code in (NackCode.OUT_OF_RANGE, NackCode.NOT_FINITE) and fields:
-        sent = ", ".join(f"{k} = {_g(v)}" for k, v in fields.items() if isinstance(v, float))
-        return f"refused: {reason} (sent {sent})" if sent else f"refused: {reason}"
-    return f"refused: {reason}"
+    # The NACK names the refused field by its index on the wire (and the bound it broke).
+    name = field_name(reply.msg_type, reply.field)
+    if name is None:
+        return f"refused: {reason}"
+    what = f"{name} = {_g(fields[name])}" if name in fields else name
+    if code is NackCode.TOO_HIGH:
+        return f"refused: {what} > limit {_g(reply.limit)}"
+    if code is NackCode.TOO_LOW:
+        return f"refused: {what} < limit {_g(reply.limit)}"
+    return f"refused: {what}: {reason}"
 
 
 def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
@@ -283,6 +300,13 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
         )
     if isinstance(reply, FaultReport):
         return f"FAULT {_name(Fault, reply.fault)} at tick {reply.tick} (value {reply.value:g})"
+    if isinstance(reply, FaultInfo):
+        if not reply.latched:
+            return f"fault bit {reply.bit}: not latched"
+        return (
+            f"fault bit {reply.bit}: tripped at tick {reply.tick}, value {reply.value:g}, "
+            f"threshold {reply.threshold:g}"
+        )
     if isinstance(reply, Malformed):
         return f"malformed frame from the board: {reply}"
     return str(reply)

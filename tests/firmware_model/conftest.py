@@ -9,6 +9,7 @@ Good enough to close the loops; not an accuracy reference.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass, field
@@ -19,6 +20,7 @@ import pytest
 
 from firmware_model.firmware import Firmware
 from serial_protocol import frame
+from serial_protocol.messages import Hello
 
 # The UART fuzzers (uart_fuzz.py) are shared with benchmarks/fuzz_firmware.py: importable by
 # name from this folder (pytest runs with --import-mode=importlib, which adds no paths).
@@ -97,10 +99,29 @@ class Bench:
         self.encoder_override = None  # callable(tick, counts) -> counts
         self.adc_override = None  # callable(tick, adc) -> adc
         self.enables: list = []
+        self.auto_session = True
+        self.session = 0x5E55
+        self.opened = False
+        self.auto_hellos = 0  # Hellos the bench sent on its own (one HelloReply each)
 
     def send(self, *msgs) -> bytes:
+        """Frame ``msgs``. Like every PC client, the bench opens a session (``Hello``)
+        before its first command and stamps its session on the commands that carry 0
+        (``auto_session = False`` sends everything as it is)."""
         data = b""
         for msg in msgs:
+            if self.auto_session and not isinstance(msg, Hello):
+                if getattr(msg, "session", None) == 0:
+                    if not self.opened:
+                        self.opened = True
+                        self.auto_hellos += 1
+                        data += frame.encode(Hello(0, session=self.session), self.pc_seq)
+                        self.pc_seq = (self.pc_seq + 1) & 0xFF
+                    msg = dataclasses.replace(msg, session=self.session)
+            elif isinstance(msg, Hello) and self.auto_session:
+                self.opened = True
+                if msg.session == 0:
+                    msg = dataclasses.replace(msg, session=self.session)
             data += frame.encode(msg, self.pc_seq)
             self.pc_seq = (self.pc_seq + 1) & 0xFF
         return data

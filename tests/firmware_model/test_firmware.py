@@ -85,7 +85,7 @@ def test_planned_move_tracks_and_settles(make_bench):
 def test_interrupt_replans_without_a_velocity_jump(make_bench):
     b = make_bench()
     b.run(400, {5: [move(1, 40.0)], 60: [move(2, -20.0)], 200: [move(3, 10.0, v=100.0)]})
-    assert acks(b) == [(1, 2), (2, 2), (3, 2)]
+    assert acks(b) == [(1, MsgType.MOVE), (2, MsgType.MOVE), (3, MsgType.MOVE)]
     sp_v = b.arr("sp_vel_dps")
     assert np.abs(np.diff(sp_v)).max() <= A * 0.002 + 1e-6
     assert b.arr("sp_pos_deg")[-1] == 10.0
@@ -113,7 +113,7 @@ def test_scurve_and_step_profiles(make_bench):
 def test_stop_brakes_to_rest(make_bench):
     b = make_bench()
     b.run(300, {5: [move(1, 500.0)], 100: [Stop(cmd_id=2, a_max_dps2=0.0)]})
-    assert acks(b) == [(1, 2), (2, MsgType.STOP)]
+    assert acks(b) == [(1, MsgType.MOVE), (2, MsgType.STOP)]
     sp_v = b.arr("sp_vel_dps")
     assert sp_v[99] > 100.0 and sp_v[-1] == 0.0
     assert np.abs(np.diff(sp_v)).max() <= A * 0.002 + 1e-6  # configured a_max 2000
@@ -131,40 +131,64 @@ def _run_with(make_bench, extra, at=50, ticks=150, params=None):
     return b
 
 
+INF = math.inf
+
+
 @pytest.mark.parametrize(
-    ("bad", "code"),
+    ("bad", "code", "field", "limit"),
     [
-        (move(7, 10.0, a=float("nan")), NackCode.NOT_FINITE),
-        (move(7, 10.0, v=float("inf")), NackCode.NOT_FINITE),
-        (move(7, 10.0, a=0.0), NackCode.OUT_OF_RANGE),
-        (move(7, 10.0, a=-5.0), NackCode.OUT_OF_RANGE),
-        (move(7, 10.0, a=A * 2), NackCode.OUT_OF_RANGE),  # above [limits] a_max_dps2
-        (move(7, 10.0, v=1500.0), NackCode.OUT_OF_RANGE),
-        (move(7, 2e5), NackCode.OUT_OF_RANGE),  # beyond the travel
-        (move(7, 10.0, profile=Profile.SCURVE, j=0.0), NackCode.OUT_OF_RANGE),
-        (move(7, 10.0, profile=Profile.SCURVE, j=1e5), NackCode.OUT_OF_RANGE),  # kind switch
-        (Stop(cmd_id=7, a_max_dps2=float("nan")), NackCode.NOT_FINITE),
-        (Stop(cmd_id=7, a_max_dps2=-1.0), NackCode.OUT_OF_RANGE),
-        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=-0.1, ki=1.0, kd=0.0), NackCode.OUT_OF_RANGE),
-        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=0.1, ki=1.0, kd=0.1), NackCode.OUT_OF_RANGE),
-        (SetGains(cmd_id=7, loop=Loop.POSITION, kp=10.0, ki=1.0, kd=0.0), NackCode.OUT_OF_RANGE),
+        (move(7, 10.0, a=float("nan")), NackCode.NOT_FINITE, "a_max_dps2", 0.0),
+        (move(7, 10.0, v=float("inf")), NackCode.NOT_FINITE, "v_max_dps", 0.0),
+        (move(7, 10.0, a=0.0), NackCode.TOO_LOW, "a_max_dps2", 1e-3),
+        (move(7, 10.0, a=-5.0), NackCode.TOO_LOW, "a_max_dps2", 1e-3),
+        (move(7, 10.0, a=A * 2), NackCode.TOO_HIGH, "a_max_dps2", A),  # above [limits]
+        (move(7, 10.0, v=1500.0), NackCode.TOO_HIGH, "v_max_dps", 1000.0),
+        (move(7, 2e5), NackCode.TOO_HIGH, "target_deg", 1e5),  # beyond the travel
+        (move(7, 10.0, profile=Profile.SCURVE, j=0.0), NackCode.TOO_LOW, "j_max_dps3", 1e-3),
+        (move(7, 10.0, profile=Profile.SCURVE, j=1e5), NackCode.BUSY, "profile", 0.0),
+        (Stop(cmd_id=7, a_max_dps2=float("nan")), NackCode.NOT_FINITE, "a_max_dps2", 0.0),
+        (Stop(cmd_id=7, a_max_dps2=-1.0), NackCode.TOO_LOW, "a_max_dps2", 1e-3),
+        (Stop(cmd_id=7, a_max_dps2=A * 2), NackCode.TOO_HIGH, "a_max_dps2", A),
+        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=-0.1, ki=1.0, kd=0.0), NackCode.TOO_LOW,
+         "kp", 0.0),
+        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=0.1, ki=1.0, kd=0.1), NackCode.TOO_HIGH,
+         "kd", 0.0),
+        (SetGains(cmd_id=7, loop=Loop.POSITION, kp=10.0, ki=1.0, kd=0.0), NackCode.TOO_HIGH,
+         "ki", 0.0),
         (SetGains(cmd_id=7, loop=Loop.CURRENT, kp=float("nan"), ki=1.0, kd=0.0),
-         NackCode.NOT_FINITE),
-        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=5.0, ki=1.0, kd=0.0), NackCode.UNSTABLE_GAINS),
+         NackCode.NOT_FINITE, "kp", 0.0),
+        (SetGains(cmd_id=7, loop=Loop.VELOCITY, kp=5.0, ki=1.0, kd=0.0), NackCode.UNSTABLE_GAINS,
+         None, 0.0),
         (SetGains(cmd_id=7, loop=Loop.CURRENT, kp=2.0, ki=300.0, kd=0.0),
-         NackCode.UNSTABLE_GAINS),
+         NackCode.UNSTABLE_GAINS, None, 0.0),
         (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=100.0, current_limit_a=9.0,
-                   following_error_deg=5.0), NackCode.OUT_OF_RANGE),  # above the trip
-        (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=-1.0, current_limit_a=4.0,
-                   following_error_deg=5.0), NackCode.OUT_OF_RANGE),
+                   following_error_deg=5.0), NackCode.TOO_HIGH, "current_limit_a", 7.5),
         (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=100.0, current_limit_a=4.0,
-                   following_error_deg=float("nan")), NackCode.NOT_FINITE),
+                   following_error_deg=5.0, over_current_trip_a=3.0),
+         NackCode.TOO_HIGH, "current_limit_a", 3.0),  # the clamp above the new trip
+        (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=100.0, current_limit_a=4.0,
+                   following_error_deg=5.0, over_current_trip_a=8.0),
+         NackCode.TOO_HIGH, "over_current_trip_a", 7.5),  # above the configured trip
+        (SetLimits(cmd_id=7, v_max_dps=2000.0, a_max_dps2=100.0, current_limit_a=4.0,
+                   following_error_deg=5.0), NackCode.TOO_HIGH, "v_max_dps", 1100.0),
+        (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=-1.0, current_limit_a=4.0,
+                   following_error_deg=5.0), NackCode.TOO_LOW, "a_max_dps2", 1e-3),
+        (SetLimits(cmd_id=7, v_max_dps=500.0, a_max_dps2=100.0, current_limit_a=4.0,
+                   following_error_deg=float("nan")), NackCode.NOT_FINITE,
+         "following_error_deg", 0.0),
     ],
 )  # fmt: skip
-def test_bad_commands_are_nacked_and_change_nothing(make_bench, bad, code):
+def test_bad_commands_are_nacked_and_change_nothing(make_bench, bad, code, field, limit):
     good = _run_with(make_bench, [])
     b = _run_with(make_bench, [bad])
-    assert nacks(b) == [(7, code)]
+    [nack] = b.replies(Nack)
+    assert (nack.cmd_id, nack.msg_type, nack.code) == (7, bad.MSG_TYPE, code)
+    # The NACK names the field and the bound, so a client can print "v_max_dps = 1500 >
+    # limit 1000".
+    expected_field = 255 if field is None else frame.field_index(type(bad), field)
+    assert nack.field == expected_field
+    assert nack.limit == pytest.approx(limit, rel=1e-6)
+    assert frame.field_name(nack.msg_type, nack.field) == field
     assert b.fw.counters["nacks"] == 1 and b.fw.counters[f"nack_{code.name}"] == 1
     assert b.fw.counters["commands_applied"] == 1  # the first Move only
     # Nothing half-applied: the run is the run without the bad command, bit for bit.
@@ -192,13 +216,20 @@ def test_malformed_frames_are_nacked_with_their_code(make_bench):
     assert b.arr("state")[-1] == State.IDLE
 
 
-def test_repeated_cmd_id_is_acked_not_applied(make_bench):
+def test_repeated_command_is_acked_not_applied(make_bench):
+    # A retry is the same frame payload again (cmd_id and session included): answered
+    # again, not applied again, even after the axis has moved on.
     b = make_bench()
-    b.run(200, {5: [move(1, 50.0)], 30: [move(1, -50.0)], 40: [move(2, 20.0)]})
-    assert acks(b) == [(1, 2), (1, 2), (2, 2)]
+    b.run(200, {5: [move(1, 50.0)], 30: [move(1, 50.0)], 40: [move(2, 20.0)]})
+    assert acks(b) == [(1, MsgType.MOVE), (1, MsgType.MOVE), (2, MsgType.MOVE)]
     assert b.fw.counters["duplicates"] == 1 and b.fw.counters["commands_applied"] == 2
-    sp = b.arr("sp_pos_deg")
-    assert sp[39] > 0.0 and sp[-1] == 20.0  # -50 never became the target
+    assert b.arr("sp_pos_deg")[-1] == 20.0
+    # The same cmd_id with a different payload is a new command (a client that reuses an
+    # id is not silently ignored): carried out.
+    r = make_bench()
+    r.run(200, {5: [move(1, 50.0)], 30: [move(1, -50.0)]})
+    assert r.fw.counters["duplicates"] == 0 and r.fw.counters["commands_applied"] == 2
+    assert r.fw._target_deg == -50.0
     # A repeat of a NACKed command gets the same NACK again.
     n = make_bench()
     n.run(20, {5: [move(3, 1.0, v=float("nan"))], 10: [move(3, 1.0, v=float("nan"))]})
@@ -264,7 +295,11 @@ def _check_fault_cycle(b, fault):
         (102, NackCode.FAULT_ACTIVE),
         (104, NackCode.DISABLED),
     ]
-    assert acks(b)[-3:] == [(103, MsgType.CLEAR_FAULT), (105, MsgType.SET_ENABLE), (106, 2)]
+    assert acks(b)[-3:] == [
+        (103, MsgType.CLEAR_FAULT),
+        (105, MsgType.SET_ENABLE),
+        (106, MsgType.MOVE),
+    ]
     state = b.arr("state")
     assert state[t + 4] == State.DISABLED and state[t + 8] == State.IDLE
     assert state[-1] in (State.MOVING, State.HOLDING)
@@ -347,8 +382,9 @@ def test_telemetry_every_tick_decimated_at_low_baud_and_never_silently_dropped(m
     assert tel[-1].pos_deg == pytest.approx(b.arr("pos_deg")[-1], abs=1e-4)
     slow = make_bench(FirmwareParams(telemetry=TelemetryParams(baud=115200)))
     slow.run(20)
-    assert slow.fw.telemetry_decimation == 2
-    assert [t.tick for t in slow.replies(Telemetry)] == list(range(0, 20, 2))
+    # 40-byte frames at 500 Hz need 20000 B/s; 80 % of 11520 B/s carries every third tick.
+    assert slow.fw.telemetry_decimation == 3
+    assert [t.tick for t in slow.replies(Telemetry)] == list(range(0, 20, 3))
     # A TX FIFO with no room: frames are dropped whole and counted, replies wait.
     full = make_bench(tx_free=0)
     full.run(10, {2: [GetStatus(cmd_id=1)]})
@@ -356,7 +392,7 @@ def test_telemetry_every_tick_decimated_at_low_baud_and_never_silently_dropped(m
     assert full.fw.counters["tx_telemetry_dropped"] == 10
     full.tx_free = 4096
     full.run(1)
-    assert [type(m) for m in full.received] == [Status, Telemetry]
+    assert [type(m) for m in full.received] == [HelloReply, Status, Telemetry]
     off = make_bench()
     off.run(10, {0: [SetTelemetry(cmd_id=1, decimation=0)]})
     assert off.replies(Telemetry) == [] and acks(off) == [(1, MsgType.SET_TELEMETRY)]
@@ -460,7 +496,7 @@ def test_planned_move_after_a_step_move_starts_from_the_axis(make_bench):
         500,
         {5: [move(1, 200.0, v=300.0, profile=Profile.STEP)], 100: [move(2, 0.0, v=300.0)]},
     )
-    assert acks(b) == [(1, 2), (2, 2)]
+    assert acks(b) == [(1, MsgType.MOVE), (2, MsgType.MOVE)]
     sp, pos = b.arr("sp_pos_deg"), b.arr("pos_deg")
     # At the interrupt the setpoint leaves the step target and restarts where the axis is,
     # at the speed the axis has (the STEP move runs at ~300 deg/s there): starting from rest
@@ -478,7 +514,7 @@ def test_lowering_the_limits_mid_move_replans_without_a_jump(make_bench):
     lower = SetLimits(cmd_id=2, v_max_dps=100.0, a_max_dps2=1000.0, current_limit_a=5.0,
                       following_error_deg=30.0)  # fmt: skip
     b.run(400, {5: [move(1, 300.0, v=300.0)], 150: [lower]})
-    assert acks(b) == [(1, 2), (2, MsgType.SET_LIMITS)]
+    assert acks(b) == [(1, MsgType.MOVE), (2, MsgType.SET_LIMITS)]
     sp_v = b.arr("sp_vel_dps")
     assert sp_v[149] == pytest.approx(300.0)
     assert np.abs(np.diff(sp_v)).max() <= A * 0.002 + 1e-6  # no jump

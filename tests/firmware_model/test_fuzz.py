@@ -12,11 +12,14 @@ from firmware_model.params import FirmwareParams, ServoParams
 from serial_protocol.messages import (
     Ack,
     ClearFault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -75,6 +78,8 @@ def _command():
         st.builds(GetGains, cmd_id=_ids, loop=st.sampled_from(list(Loop))),
         st.builds(GetLimits, cmd_id=_ids),
         st.just(Hello()),
+        st.builds(Heartbeat),
+        st.builds(GetFault, cmd_id=_ids, bit=st.integers(0, 40)),
     )
 
 
@@ -94,11 +99,13 @@ def test_random_command_streams(make_bench, variant, script, garbage):
     b.run(80, script, rx_raw=garbage)
     n_sent = sum(len(v) for v in script.values())
     replies = [m for m in b.received if isinstance(m, Ack | Nack | Status | Gains | Limits |
-                                                   HelloReply)]  # fmt: skip
+                                                   HelloReply | FaultInfo)]  # fmt: skip
+    # A Heartbeat of the session is not answered.
+    n_sent -= sum(isinstance(m, Heartbeat) for v in script.values() for m in v)
     # Garbage may corrupt a command's frame (then it is never answered) or hold a fake
     # Malformed frame (an extra NACK); without garbage every command is answered once.
     if not garbage:
-        assert len(replies) == n_sent
+        assert len(replies) == n_sent + b.auto_hellos
     duty = b.arr("duty").reshape(80, -1)[:, 0]  # member 0 in batch (the one replies describe)
     assert np.all(np.abs(duty) <= 1.0)
     np.testing.assert_allclose(duty * 3600, np.round(duty * 3600), atol=1e-9)

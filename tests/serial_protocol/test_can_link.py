@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import uuid
+from dataclasses import replace
 
 import can
 import pytest
@@ -15,13 +16,17 @@ from serial_protocol.frame import payload_bytes
 from serial_protocol.host import BoardClient
 from serial_protocol.messages import (
     Ack,
+    BoardHeartbeat,
     ClearFault,
     Fault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -54,7 +59,7 @@ ONE_OF_EACH = [
     ClearFault(8),
     SetEnable(9, True),
     SetTelemetry(10, 2),
-    HelloReply(1, 0, 1, 2, 500, 16384),
+    HelloReply(1, 7, 2, 0, 1, 2, 500, 16384, 0x3FFE, 64, 256, 32, 1, 200, 0, 20, 460800),
     Telemetry(11, 1.5, -2.5, 1.25, -2.0, 0.5, -0.25, State.MOVING, Fault.NONE),
     Ack(12, MsgType.MOVE),
     Nack(13, MsgType.MOVE, NackCode.NOT_FINITE),
@@ -62,6 +67,10 @@ ONE_OF_EACH = [
     Gains(15, Loop.CURRENT, 0.25, 0.5, 0.0),
     Limits(16, 990.0, 148.0, 5.0, 10.0),
     Status(17, 18, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0),
+    Heartbeat(0, 7),
+    GetFault(19, 16, session=7),
+    BoardHeartbeat(20, 7, State.IDLE, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9),
+    FaultInfo(21, 16, True, 99, 1234.0, 1024.0),
 ]
 
 
@@ -94,7 +103,7 @@ def test_split_and_reassemble_every_message(msg):
 
 def test_telemetry_takes_five_frames():
     frames = can_frames(ONE_OF_EACH[12])
-    assert [len(data) for _, data in frames] == [8, 8, 8, 8, 3]  # 26 + 4 bytes of CRC
+    assert [len(data) for _, data in frames] == [8, 8, 8, 8, 7]  # 30 + 4 bytes of CRC
 
 
 @settings(max_examples=50)
@@ -255,7 +264,10 @@ def _serve_acks(board: CanLink, stop: threading.Event) -> None:
         for msg in board.poll(0.01):
             tick += 1
             board.send(Telemetry(tick, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, State.IDLE, 0))
-            board.send(Ack(msg.cmd_id, msg.MSG_TYPE))
+            if isinstance(msg, Hello):
+                board.send(replace(ONE_OF_EACH[11], cmd_id=msg.cmd_id, session=msg.session))
+            else:
+                board.send(Ack(msg.cmd_id, msg.MSG_TYPE))
 
 
 def test_client_over_the_virtual_bus():
@@ -267,11 +279,13 @@ def test_client_over_the_virtual_bus():
         client = BoardClient(pc, ack_timeout_s=1.0)
         try:
             for k in range(10):
-                assert client.move(100.0 * k, 990.0, 148.0) == Ack(k + 1, MsgType.MOVE)
+                reply = client.move(100.0 * k, 990.0, 148.0)
+                assert reply == Ack(client.last_command.cmd_id, MsgType.MOVE)
         finally:
             stop.set()
             worker.join(timeout=5)
-        assert [t.tick for t in client.telemetry] == list(range(1, 11))
+        # one telemetry frame per command: the Hello that opened the session and 10 moves
+        assert [t.tick for t in client.telemetry] == list(range(1, 12))
         assert pc.reassembler.stats.reassembly_errors == 0
 
 

@@ -17,7 +17,7 @@ WIRE_TYPES = {"u8": "B", "u16": "H", "u32": "I", "i16": "h", "i32": "i", "f32": 
 
 
 def _section(name: str) -> str:
-    match = re.search(rf"^### 0x[0-9A-F]{{2}} `{name}` .*?(?=^### |^## )", DOC, re.M | re.S)
+    match = re.search(rf"^#### 0x[0-9A-F]{{2}} `{name}` .*?(?=^#### |^### |^## )", DOC, re.M | re.S)
     assert match, f"no section for {name} in docs/protocol.md"
     return match.group(0)
 
@@ -26,14 +26,16 @@ def _section(name: str) -> str:
 def test_message_table_matches_codec(cls):
     codec = frame._BY_CLASS[cls]
     text = _section(cls.__name__)
-    head = re.match(r"### 0x([0-9A-F]{2}) `\w+` \(payload (\d+), frame (\d+) bytes\)", text)
+    head = re.match(r"#### 0x([0-9A-F]{2}) `\w+` \(payload (\d+), frame (\d+) bytes\)", text)
     assert head
     assert int(head.group(1), 16) == codec.msg_type
     assert int(head.group(2)) == codec.payload.size
     assert int(head.group(3)) == codec.payload.size + frame.OVERHEAD_BYTES
     rows = re.findall(r"^\| (\d+) \| (\d+) \| `(\w+)` \| (\w+) \|", text, re.M)
-    names = [f.name for f in dataclasses.fields(cls)]
+    names = [f.name for f in frame.wire_fields(cls)]
     assert [r[2] for r in rows] == names
+    # every dataclass field is on the wire, and nothing else
+    assert sorted(names) == sorted(f.name for f in dataclasses.fields(cls))
     assert "".join(WIRE_TYPES[r[3]] for r in rows) == codec.fmt
     offset = 0
     for row in rows:
@@ -62,6 +64,10 @@ def test_bandwidth_table_matches_code():
 
 
 def test_doc_states_check_values_and_sizes():
-    assert "0x29B1" in DOC and "0xF4" in DOC
+    assert (
+        f"0x{frame.crc32(b'123456789'):08X}" in DOC and f"0x{frame.crc8(b'123456789'):02X}" in DOC
+    )
+    assert f"Overhead: {frame.OVERHEAD_BYTES} bytes per frame" in DOC
+    assert f"**no byte has\n   arrived for {frame.RX_SILENCE_S * 1000:.0f} ms**" in DOC
     assert f"The largest frame is {frame.MAX_FRAME_BYTES} bytes" in DOC
     assert f"One `Telemetry` frame is {frame.TELEMETRY_FRAME_BYTES} bytes" in DOC

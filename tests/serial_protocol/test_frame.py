@@ -18,7 +18,7 @@ from serial_protocol.frame import (
     TELEMETRY_FRAME_BYTES,
     Decoder,
     crc8,
-    crc16,
+    crc32,
     decode_payload,
     encode,
     encode_payload,
@@ -29,14 +29,19 @@ from serial_protocol.frame import (
     payload_size_of_type,
 )
 from serial_protocol.messages import (
+    NO_FIELD,
     Ack,
+    BoardHeartbeat,
     ClearFault,
     Fault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -69,18 +74,39 @@ milli16 = st.integers(-(2**15), 2**15 - 1).map(lambda k: k / 1_000.0)
 duty = st.integers(-10_000, 10_000).map(lambda k: k / 10_000.0)
 
 BY_CLASS = {
-    Hello: st.just(Hello()),
-    Move: st.builds(Move, u16, pos, f32, f32, f32, st.sampled_from(Profile)),
-    Stop: st.builds(Stop, u16, f32),
-    SetGains: st.builds(SetGains, u16, st.sampled_from(Loop), f32, f32, f32),
-    GetGains: st.builds(GetGains, u16, st.sampled_from(Loop)),
-    SetLimits: st.builds(SetLimits, u16, f32, f32, f32, f32),
-    GetLimits: st.builds(GetLimits, u16),
-    GetStatus: st.builds(GetStatus, u16),
-    ClearFault: st.builds(ClearFault, u16),
-    SetEnable: st.builds(SetEnable, u16, st.booleans()),
-    SetTelemetry: st.builds(SetTelemetry, u16, u16),
-    HelloReply: st.builds(HelloReply, u8, u8, u8, u8, u16, u16),
+    Hello: st.builds(Hello, u16, u8, u8, u16),
+    Heartbeat: st.builds(Heartbeat, u16, u16),
+    Move: st.builds(Move, u16, pos, f32, f32, f32, st.sampled_from(Profile), u16),
+    Stop: st.builds(Stop, u16, f32, u16),
+    SetGains: st.builds(SetGains, u16, st.sampled_from(Loop), f32, f32, f32, u16),
+    GetGains: st.builds(GetGains, u16, st.sampled_from(Loop), u16),
+    SetLimits: st.builds(SetLimits, u16, f32, f32, f32, f32, f32, u16),
+    GetLimits: st.builds(GetLimits, u16, u16),
+    GetStatus: st.builds(GetStatus, u16, u16),
+    ClearFault: st.builds(ClearFault, u16, u16),
+    SetEnable: st.builds(SetEnable, u16, st.booleans(), u16),
+    SetTelemetry: st.builds(SetTelemetry, u16, u16, u16),
+    GetFault: st.builds(GetFault, u16, u8, u16),
+    HelloReply: st.builds(
+        HelloReply,
+        u16,
+        u16,
+        u8,
+        u8,
+        u8,
+        u8,
+        u16,
+        u16,
+        u32,
+        u8,
+        u16,
+        u8,
+        u16,
+        u16,
+        u16,
+        u16,
+        u32,
+    ),
     Telemetry: st.builds(
         Telemetry,
         u32,
@@ -92,15 +118,42 @@ BY_CLASS = {
         duty,
         st.sampled_from(State),
         st.sampled_from(Fault),
+        u32,
     ),
     Ack: st.builds(Ack, u16, u8),
-    Nack: st.builds(Nack, u16, u8, st.sampled_from(NackCode)),
-    FaultReport: st.builds(FaultReport, u32, st.sampled_from(Fault), f32),
+    Nack: st.builds(Nack, u16, u8, st.sampled_from(NackCode), u8, f32),
+    FaultReport: st.builds(FaultReport, u32, st.sampled_from(Fault), f32, u32, f32),
     Gains: st.builds(Gains, u16, st.sampled_from(Loop), f32, f32, f32),
-    Limits: st.builds(Limits, u16, f32, f32, f32, f32),
+    Limits: st.builds(Limits, u16, f32, f32, f32, f32, f32, f32, f32, f32, f32),
     Status: st.builds(
-        Status, u16, u32, st.sampled_from(State), st.sampled_from(Fault), pos, pos, pos
+        Status,
+        u16,
+        u32,
+        st.sampled_from(State),
+        st.sampled_from(Fault),
+        pos,
+        pos,
+        pos,
+        u32,
+        u16,
     ),
+    BoardHeartbeat: st.builds(
+        BoardHeartbeat,
+        u32,
+        u16,
+        st.sampled_from(State),
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+        u32,
+    ),
+    FaultInfo: st.builds(FaultInfo, u16, u8, st.booleans(), u32, f32, f32),
 }
 MESSAGES = st.one_of(*BY_CLASS.values())
 
@@ -126,8 +179,10 @@ def decode_all(data: bytes) -> tuple[list, Decoder]:
 
 
 def test_crc_check_values():
-    assert crc16(b"123456789") == 0x29B1  # CRC-16/CCITT-FALSE
+    assert crc32(b"123456789") == 0xCBF43926  # CRC-32/ISO-HDLC
     assert crc8(b"123456789") == 0xF4  # CRC-8/SMBUS
+    # continuing a CRC over a split message gives the CRC of the whole
+    assert crc32(b"6789", crc32(b"12345")) == 0xCBF43926
 
 
 def test_every_message_type_has_a_codec_and_fits():
@@ -139,8 +194,8 @@ def test_every_message_type_has_a_codec_and_fits():
 
 def test_telemetry_frame_size_matches_layout():
     # header 6 + tick 4 + 4 positions/velocities x 4 + current 2 + duty 2 + state 1 + fault 1
-    # + CRC 2
-    assert TELEMETRY_FRAME_BYTES == 6 + 4 + 16 + 2 + 2 + 1 + 1 + 2
+    # + fault flags 4 + CRC 4
+    assert TELEMETRY_FRAME_BYTES == 6 + 4 + 16 + 2 + 2 + 1 + 1 + 4 + 4
     assert len(encode(telemetry(1), 0)) == TELEMETRY_FRAME_BYTES
 
 
@@ -150,7 +205,8 @@ def test_frame_layout_by_hand():
     assert data[2] == 3 and data[3] == MsgType.ACK and data[4] == 9
     assert data[5] == crc8(data[2:5])
     assert data[6:9] == bytes((0x34, 0x12, MsgType.MOVE))
-    assert int.from_bytes(data[9:11], "little") == crc16(data[2:9])
+    assert int.from_bytes(data[9:13], "little") == crc32(data[2:9])
+    assert len(data) == 13
     assert frame_raw(MsgType.ACK, data[6:9], 9) == data
 
 
@@ -192,6 +248,18 @@ def test_unframed_payload_malformed():
     assert payload_size_of_type(0x55) is None
 
 
+@pytest.mark.parametrize("cls", list(BY_CLASS), ids=lambda c: c.__name__)
+@settings(max_examples=20)
+@given(data=st.data(), extra=st.binary(min_size=1, max_size=8))
+def test_appended_fields_are_ignored(cls, data, extra):
+    # The extension rule: a newer peer appends fields; an older one decodes the fields it
+    # knows and ignores the rest (a shorter payload is BAD_LENGTH).
+    msg = data.draw(BY_CLASS[cls])
+    msg_type, payload = encode_payload(msg)
+    [got] = Decoder().feed(frame_raw(msg_type, payload + extra, 0))
+    assert _same([got], [msg])
+
+
 def test_nan_and_infinity_travel_in_float_fields():
     decoder = Decoder()
     [move] = decoder.feed(encode(Move(1, 10.0, math.nan, math.inf, -math.inf), 0))
@@ -225,19 +293,28 @@ def test_telemetry_saturates_and_rejects_nan():
 
 
 @pytest.mark.parametrize(
-    "msg",
+    ("msg", "match"),
     [
-        Move(70_000, 1.0, 1.0, 1.0),
-        Move(1, math.nan, 1.0, 1.0),
-        Move(1, 1e9, 1.0, 1.0),
-        Stop(-1),
-        SetTelemetry(1, 70_000),
-        Stop(1, 1e300),
+        (Move(70_000, 1.0, 1.0, 1.0), r"Move.cmd_id = 70000: must be an integer in 0 .. 65535"),
+        (Move(1, math.nan, 1.0, 1.0), r"Move.target_deg = nan deg: beyond the wire range"),
+        (Move(1, 1e9, 1.0, 1.0), r"Move.target_deg = 1000000000.0 deg: beyond the wire range "
+                                 r"-214748.3648 .. 214748.3647 deg"),
+        (Stop(-1), r"Stop.cmd_id = -1"),
+        (SetTelemetry(1, 70_000), r"SetTelemetry.decimation = 70000"),
+        (Stop(1, 1e300), r"Stop.a_max_dps2 = 1e\+300: beyond the float32 range"),
+        (Move(1, 1.0, "fast", 1.0), r"Move.v_max_dps = 'fast': must be a number"),
+        (SetEnable(1, 2), r"SetEnable.enable = 2: must be true or false"),
+        (Move(1, 1.0, 1.0, 1.0, session=-3), r"Move.session = -3"),
+        (GetGains(1, 7), r"GetGains.loop = 7: must be one of"),
     ],
-)
-def test_command_values_that_do_not_fit_raise(msg):
-    with pytest.raises(ValueError, match="cannot encode"):
+)  # fmt: skip
+def test_command_values_that_do_not_fit_raise_naming_the_field(msg, match):
+    # The host library refuses what the wire cannot carry: a ValueError naming the field,
+    # never a struct.error.
+    with pytest.raises(ValueError, match=match):
         encode(msg, 0)
+    with pytest.raises(ValueError, match=match):
+        encode_payload(msg)
 
 
 def test_encode_rejects_non_messages():
@@ -254,20 +331,22 @@ def test_unknown_type_with_good_crc_is_malformed():
     assert decoder.malformed == 1 and decoder.frames == 1 and decoder.crc_errors == 0
 
 
-def test_wrong_length_is_malformed_with_cmd_id():
-    payload = encode(Move(0x0A0B, 1.0, 2.0, 3.0), 0)[6:-2]
+def test_short_payload_is_malformed_with_cmd_id():
+    payload = encode(Move(0x0A0B, 1.0, 2.0, 3.0), 0)[6:-4]
     out, _ = decode_all(frame_raw(MsgType.MOVE, payload[:-1], 4))
     assert out == [Malformed(MsgType.MOVE, 4, 0x0A0B, NackCode.BAD_LENGTH)]
     out, _ = decode_all(frame_raw(MsgType.GET_STATUS, b"\x01", 5))
     assert out == [Malformed(MsgType.GET_STATUS, 5, 0, NackCode.BAD_LENGTH)]
 
 
-def test_undefined_enum_value_is_malformed_out_of_range():
-    payload = struct.pack("<HB", 77, 9)  # Loop 9 does not exist
+def test_undefined_enum_value_is_malformed_out_of_range_naming_the_field():
+    payload = struct.pack("<HHB", 77, 1, 9)  # Loop 9 does not exist
     out, _ = decode_all(frame_raw(MsgType.GET_GAINS, payload, 0))
-    assert out == [Malformed(MsgType.GET_GAINS, 0, 77, NackCode.OUT_OF_RANGE)]
-    out, _ = decode_all(frame_raw(MsgType.SET_ENABLE, struct.pack("<HB", 78, 2), 1))
-    assert out == [Malformed(MsgType.SET_ENABLE, 1, 78, NackCode.OUT_OF_RANGE)]
+    assert out == [Malformed(MsgType.GET_GAINS, 0, 77, NackCode.OUT_OF_RANGE, 2)]
+    out, _ = decode_all(frame_raw(MsgType.SET_ENABLE, struct.pack("<HHB", 78, 1, 2), 1))
+    assert out == [Malformed(MsgType.SET_ENABLE, 1, 78, NackCode.OUT_OF_RANGE, 2)]
+    assert frame.field_name(MsgType.SET_ENABLE, 2) == "enable"
+    assert frame.field_name(MsgType.SET_ENABLE, NO_FIELD) is None
 
 
 def test_frame_raw_rejects_oversize_payload():
@@ -470,7 +549,8 @@ def test_feed_columns_is_feed_with_telemetry_as_columns(msgs, data):
     for name, values in expected_columns.items():
         column = got_columns[name]
         assert column.shape == (len(values),)
-        assert column.dtype == (np.int64 if name in ("tick", "state", "fault") else np.float64)
+        ints = ("tick", "state", "fault", "fault_flags")
+        assert column.dtype == (np.int64 if name in ints else np.float64)
         # Bit for bit the values the objects carry (wire / scale).
         assert column.tolist() == [float(v) if column.dtype == float else int(v) for v in values]
     assert _same(got_others, expected_others)
@@ -482,8 +562,8 @@ def test_feed_columns_across_chunks_and_bad_codes():
     msgs, frames = stream(5)
     bad = bytearray(frames[2])
     bad[frame.HEADER_BYTES + 24] = 0xEE  # state code out of range: Malformed, as feed says
-    body = bytes(bad[2:-2])
-    bad[-2:] = frame.crc16(body).to_bytes(2, "little")
+    body = bytes(bad[2:-4])
+    bad[-4:] = frame.crc32(body).to_bytes(4, "little")
     raw = frames[0] + frames[1] + bytes(bad) + frames[3] + frames[4]
     decoder = Decoder()
     first, others_1 = decoder.feed_columns(raw[:50])  # a frame and a half
@@ -500,4 +580,4 @@ def test_feed_columns_across_chunks_and_bad_codes():
 def test_feed_columns_of_nothing():
     columns, others = Decoder().feed_columns(b"")
     assert others == []
-    assert all(c.shape == (0,) for c in columns.values()) and len(columns) == 9
+    assert all(c.shape == (0,) for c in columns.values()) and len(columns) == 10

@@ -19,6 +19,9 @@ from sim.plant import derivative
 
 BENCH = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
 
+# What every PC client sends first: a Hello opening session 1 (the commands carry it).
+OPEN = frame.encode(Hello(0, session=1), 0)
+
 
 @pytest.fixture(scope="module")
 def bench():
@@ -66,9 +69,9 @@ def test_accuracy_against_solve_ivp_over_five_seconds(bench):
     solve_ivp (rtol 1e-10) of the continuous model gives the same motor angle to 1e-6 rev."""
     sim = Simulation(bench, record_inputs=True)
     sim.step(25)
-    sim.pc_write(frame.encode(Move(1, 200.0, 500.0, 2000.0), 0))
+    sim.pc_write(OPEN + frame.encode(Move(1, 200.0, 500.0, 2000.0, session=1), 1))
     sim.step(1225)
-    sim.pc_write(frame.encode(Move(2, -50.0, 800.0, 3000.0), 1))
+    sim.pc_write(frame.encode(Move(2, -50.0, 800.0, 3000.0, session=1), 2))
     sim.step(1250)
     log = sim.log()
     duty, enable = sim.inputs()
@@ -131,7 +134,7 @@ def test_pc_side_telemetry_matches_the_log(tmp_path):
 def test_hello_round_trip_through_the_emulated_uart(bench):
     sim = Simulation(bench)
     sim.step(2)
-    sim.pc_write(frame.encode(Hello(), 0))
+    sim.pc_write(OPEN)
     got = []
     dec = frame.Decoder()
     for _ in range(20):
@@ -252,7 +255,7 @@ def test_keep_log_false_keeps_nothing_but_runs_the_same(bench):
     b = Simulation(bench)
     for s in (a, b):
         s.step(2)
-        s.pc_write(frame.encode(Move(1, 10.0, 300.0, 1000.0), 0))
+        s.pc_write(OPEN + frame.encode(Move(1, 10.0, 300.0, 1000.0, session=1), 1))
         s.step(200)
     np.testing.assert_array_equal(a.plant_state, b.plant_state)
     with pytest.raises(ValueError, match="keep_log"):
@@ -295,7 +298,7 @@ def test_current_loop_multiple_steps_the_plant_that_many_times_per_tick(bench):
     sim = Simulation(bench, overrides={"servo.current_loop_multiple": 2}, record_inputs=True)
     assert sim.h_s == pytest.approx(0.001)
     sim.step(2)
-    sim.pc_write(frame.encode(Move(1, 90.0, 300.0, 1000.0), 0))
+    sim.pc_write(OPEN + frame.encode(Move(1, 90.0, 300.0, 1000.0, session=1), 1))
     sim.step(748)
     duty, _ = sim.inputs()
     assert len(duty) == 2 * 750
@@ -305,7 +308,7 @@ def test_current_loop_multiple_steps_the_plant_that_many_times_per_tick(bench):
 def test_batch_log_columns_are_copies_of_the_rows_in_tick_order(bench):
     sim = Simulation(bench, batch=3)
     sim.step(2)
-    sim.pc_write(frame.encode(Move(1, 10.0, 300.0, 1000.0), 0))
+    sim.pc_write(OPEN + frame.encode(Move(1, 10.0, 300.0, 1000.0, session=1), 1))
     rows = {f: [] for f in ("pos_deg", "duty", "state", "motor_pos_rad", "current_a")}
     for _ in range(150):
         rows["motor_pos_rad"].append(sim.plant_state[:, 1])  # the state the tick samples
@@ -334,7 +337,8 @@ def test_run_hands_over_the_same_batch_log_as_log(tmp_path):
     sim = Simulation(exp.bench, batch=2)
     first = math.ceil(exp.commands[0].t_s / sim.dt_s - 1e-9)
     sim.step(first)
-    sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+    sim.pc_write(frame.encode(Hello(1, session=1), 0))  # as run() opens its session
+    sim.pc_write(frame.encode(exp.commands[0].message(2, session=1), 1))
     sim.step(len(res.log) - first)
     log = sim.log()
     for f in LOG_FIELDS:
