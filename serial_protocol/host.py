@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from serial_protocol.exceptions import LinkError, LinkTimeout
-from serial_protocol.frame import field_name
+from serial_protocol.frame import encode_payload, field_name
 from serial_protocol.messages import (
     COMMAND_TYPES,
     PROTOCOL_VERSION,
@@ -232,6 +232,7 @@ class BoardClient:
         cannot go on the wire."""
         if type(msg) not in _COMMANDS or isinstance(msg, Hello | Heartbeat):
             raise TypeError(f"not a command with an answer: {msg!r}")
+        encode_payload(msg)  # a value the wire cannot carry: ValueError, nothing sent
         if not self.session:
             self.hello()
         if msg.session != self.session:  # type: ignore[union-attr]

@@ -14,33 +14,9 @@ from serial_protocol.host import BoardClient
 from serial_protocol.messages import Ack, MsgType, State, Status
 from sim.config import load_bench
 from sim.loop import Simulation
+from sim.simlink import SimulatedLink
 
 BENCH = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
-
-
-class SimLink:
-    """A ``Link`` into an in-process simulation: ``poll`` advances simulated time (at most
-    ``ticks_per_poll`` ticks per call), so the test does not depend on wall-clock speed."""
-
-    def __init__(self, sim: Simulation, ticks_per_poll: int = 5) -> None:
-        self.sim = sim
-        self.decoder = frame.Decoder()
-        self.ticks_per_poll = ticks_per_poll
-        self._seq = 0
-
-    def send(self, msg) -> None:
-        self.send_bytes(frame.encode(msg, self._seq))
-        self._seq = (self._seq + 1) & 0xFF
-
-    def send_bytes(self, data: bytes) -> None:
-        self.sim.pc_write(data)
-
-    def poll(self, timeout_s: float) -> list:
-        self.sim.step(self.ticks_per_poll)
-        return self.decoder.feed(self.sim.pc_read())
-
-    def close(self) -> None:
-        pass
 
 
 @pytest.fixture
@@ -50,8 +26,8 @@ def sim():
 
 def program(sim: Simulation) -> BoardClient:
     """A new PC program on the board's line (its own decoder, sequence and session)."""
-    # A generous wall-clock timeout: time here is the simulation's, advanced by poll().
-    return BoardClient(SimLink(sim), ack_timeout_s=30.0)
+    # A generous wall-clock timeout: time here is the simulation's, advanced by each poll.
+    return BoardClient(SimulatedLink(sim, ticks_per_poll=5), ack_timeout_s=30.0)
 
 
 def test_monitor_enable_then_disable(sim):
@@ -84,9 +60,8 @@ def test_monitor_move_30_then_move_minus_30(sim):
 
 
 def test_a_killed_tools_false_header_does_not_delay_the_next_program(sim):
-    killed = SimLink(sim)
     head = bytes((frame.MAX_PAYLOAD_BYTES, 0x03, 0))
-    killed.send_bytes(frame.SYNC + head + bytes((frame.crc8(head),)))  # then it dies
+    sim.pc_write(frame.SYNC + head + bytes((frame.crc8(head),)))  # then the tool dies
     sim.step(round(frame.RX_SILENCE_S / sim.dt_s))  # the documented silence
     client = program(sim)
     client.link.ticks_per_poll = 1

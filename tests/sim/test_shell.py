@@ -110,7 +110,7 @@ def test_history_recalls_the_last_line(board):
         shell.run()
         typist.join(timeout=5)
     assert sum(s.startswith("status: ") for s in said) == 2
-    assert client.stats.commands == 2
+    assert client.stats.commands == 3  # the Hello that opened the session, two GetStatus
 
 
 def type_when(shell, inp, steps) -> None:

@@ -52,7 +52,8 @@ class TcpBoard(threading.Thread):
                 for msg in decoder.feed(data):
                     self.received.append(msg)
                     if isinstance(msg, Hello):
-                        reply = HelloReply(1, 0, 1, 0, 500, 16384)
+                        reply = HelloReply(msg.cmd_id, msg.session, 2, 0, 1, 0, 500, 16384, 0,
+                                           64, 256, 32, 1, 0, 0, 20, 460800)  # fmt: skip
                     else:
                         reply = Ack(msg.cmd_id, msg.MSG_TYPE)
                     out += encode(reply, seq)
@@ -95,7 +96,9 @@ def test_monitor_sends_commands_records_csv_and_reports(tmp_path, capsys):
     board.join(timeout=5)
     commands = board.received
     assert isinstance(commands[0], Hello)
-    assert commands[1] == SetGains(commands[1].cmd_id, Loop.VELOCITY, 0.5, 2.0, 0.0)
+    session = commands[0].session
+    assert session != 0 and all(m.session == session for m in commands)
+    assert commands[1] == SetGains(commands[1].cmd_id, Loop.VELOCITY, 0.5, 2.0, 0.0, session)
     moves = [m for m in commands if isinstance(m, Move)]
     assert [m.target_deg for m in moves] == [3000.0, -8000.0]
     assert moves[0].profile is Profile.TRAPEZOID and moves[0].a_max_dps2 == 148.0
@@ -240,7 +243,8 @@ def test_monitor_over_can_virtual_bus_and_decode_its_log(tmp_path, capsys):
             for msg in board.poll(0.01):
                 received.append(msg)
                 if isinstance(msg, Hello):
-                    board.send(HelloReply(1, 0, 1, 0, 500, 16384))
+                    board.send(HelloReply(msg.cmd_id, msg.session, 2, 0, 1, 0, 500, 16384, 0,
+                                          64, 256, 32, 1, 0, 0, 20, 460800))  # fmt: skip
                 else:
                     board.send(Ack(msg.cmd_id, msg.MSG_TYPE))
             tick += 5
@@ -298,7 +302,8 @@ def test_interactive_session_from_stdin():
     assert "move: ok" in done.stdout and "gains: ok" in done.stdout  # replies in words
     names = [type(m).__name__ for m in board.received]
     assert names == ["Hello", "GetStatus", "Move", "SetGains"]
-    assert board.received[2] == Move(board.received[2].cmd_id, 45.0, 100.0, 200.0)
+    assert board.received[2] == Move(board.received[2].cmd_id, 45.0, 100.0, 200.0,
+                                     session=board.received[0].session)  # fmt: skip
     assert "commands 4: acks 3" in done.stdout
 
 
