@@ -79,6 +79,7 @@ _NACK_WORDS = {
     NackCode.STALE_SESSION: "another session has taken over the board",
     NackCode.UNSUPPORTED_VERSION: "the board speaks another protocol version",
     NackCode.BUSY: "refused while the board is busy",
+    NackCode.TRAVEL: "the trajectory would leave the travel",
 }
 
 
@@ -101,6 +102,10 @@ def nack_text(nack: Nack, command: object | None = None) -> str:
         why = f"{shown} < limit {nack.limit:g}"
     elif code is NackCode.UNSUPPORTED_VERSION:
         why = f"the board speaks protocol version {nack.limit:g}"
+    elif code is NackCode.TRAVEL:
+        why = f"the trajectory would cross the travel end {nack.limit:g} deg" + (
+            f" ({shown})" if shown else ""
+        )
     elif code in (NackCode.NOT_FINITE, NackCode.OUT_OF_RANGE) and name:
         why = f"{shown} {_NACK_WORDS[code]}"
     else:

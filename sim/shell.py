@@ -248,6 +248,7 @@ _NACK_WORDS = {
     NackCode.TOO_HIGH: "a value is above its limit",
     NackCode.TOO_LOW: "a value is below its limit",
     NackCode.BUSY: "not while moving",
+    NackCode.TRAVEL: "the trajectory would leave the travel",
 }
 
 
@@ -260,6 +261,8 @@ def _refused(reply: Nack, fields: dict[str, Any]) -> str:
     reason = _NACK_WORDS.get(code, f"code {reply.code}")
     # The NACK names the refused field by its index on the wire (and the bound it broke).
     name = field_name(reply.msg_type, reply.field)
+    if code is NackCode.TRAVEL:
+        return f"refused: {reason} (it would cross {_g(reply.limit)} deg)"
     if name is None:
         return f"refused: {reason}"
     what = f"{name} = {_g(fields[name])}" if name in fields else name

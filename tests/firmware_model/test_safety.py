@@ -8,6 +8,7 @@ fails on the tree before this change (the figures in the comments are what it di
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -23,9 +24,12 @@ from planner.trapezoid import plan_trapezoid
 from serial_protocol import frame
 from serial_protocol.messages import (
     Ack,
+    BoardHeartbeat,
     Fault,
     FaultReport,
     GetStatus,
+    Hello,
+    HelloReply,
     Move,
     MsgType,
     Nack,
@@ -40,6 +44,7 @@ from serial_protocol.messages import (
 from sim.loop import Simulation
 
 TRAVEL_DEG = 3600.0
+SESSION = 1
 
 
 def _run(commands, duration_s=20.0, travel_deg=TRAVEL_DEG):
@@ -48,14 +53,20 @@ def _run(commands, duration_s=20.0, travel_deg=TRAVEL_DEG):
     bench = paper_bench(**{"limits.travel_min_deg": -travel_deg,
                            "limits.travel_max_deg": travel_deg})  # fmt: skip
     sim = Simulation(bench)
+    sim.pc_write(frame.encode(Hello(0, session=SESSION), 0))  # a PC opens its session first
     tick = 0
-    for seq, (t_s, msg) in enumerate(commands):
+    for seq, (t_s, msg) in enumerate(commands, start=1):
         k = round(t_s / sim.dt_s)
         sim.step(k - tick)
         tick = k
-        sim.pc_write(frame.encode(msg, seq))
+        sim.pc_write(frame.encode(dataclasses.replace(msg, session=SESSION), seq))
     sim.step(round(duration_s / sim.dt_s) - tick)
-    answers = [m for m in frame.Decoder().feed(sim.pc_read()) if not isinstance(m, Telemetry)]
+    # The board's answers (the HelloReply, telemetry and heartbeats left out).
+    answers = [
+        m
+        for m in frame.Decoder().feed(sim.pc_read())
+        if not isinstance(m, Telemetry | HelloReply | BoardHeartbeat)
+    ]
     log = sim.log()
     # The board's zero is the encoder reading at boot; compare the true axis in its frame.
     true_pos = log.true_pos_deg + (log.pos_deg[0] - log.true_pos_deg[0])
@@ -78,7 +89,8 @@ def test_a_soft_stop_then_get_status_no_longer_kills_the_board():
         travel_deg=1e5,
     )
     assert [type(m) for m in answers] == [Ack, Nack, Status]
-    assert answers[1].code == NackCode.OUT_OF_RANGE and answers[1].msg_type == MsgType.STOP
+    assert answers[1].code == NackCode.TRAVEL and answers[1].msg_type == MsgType.STOP
+    assert answers[1].limit == 1e5  # the travel end it would cross
     assert answers[2].target_deg == 3000.0  # the move went on, unchanged
     assert abs(true_pos[-1] - 3000.0) < 0.5 and log.fault.max() == 0
 
@@ -126,7 +138,7 @@ def test_uart_fuzz_no_exception_one_answer_each_no_half_applied_nack(batch):
 def test_soft_commands_mid_move_are_refused_and_the_axis_stays_in_travel(soft):
     log, true_pos, answers = _run([(0.0, _move(1, 3000.0)), (4.0, soft)])
     assert [type(m) for m in answers] == [Ack, Nack]
-    assert answers[1].code == NackCode.OUT_OF_RANGE
+    assert answers[1].code == NackCode.TRAVEL and answers[1].limit == TRAVEL_DEG
     assert true_pos.max() <= TRAVEL_DEG
     assert abs(true_pos[-1] - 3000.0) < 0.5 and abs(log.true_vel_dps[-1]) < 1.0
 

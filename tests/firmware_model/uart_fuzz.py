@@ -33,11 +33,14 @@ from serial_protocol.messages import (
     COMMAND_TYPES,
     Ack,
     ClearFault,
+    FaultInfo,
     FaultReport,
     Gains,
+    GetFault,
     GetGains,
     GetLimits,
     GetStatus,
+    Heartbeat,
     Hello,
     HelloReply,
     Limits,
@@ -75,9 +78,11 @@ _ANSWER = {
     GetStatus: (Status,),
     GetGains: (Gains,),
     GetLimits: (Limits,),
-    Hello: (HelloReply,),
+    GetFault: (FaultInfo, Nack),
 }
-_REPLY_TYPES = (Ack, Nack, Status, Gains, Limits, HelloReply)
+_REPLY_TYPES = (Ack, Nack, Status, Gains, Limits, HelloReply, FaultInfo)
+#: The session the fuzzing PC opens; a few frames carry another one (or none).
+SESSION = 0x5EED
 _BOARD_TO_PC = tuple(t for t in MsgType if t >= 0x80)
 
 
@@ -107,6 +112,12 @@ def _random_message(rng: np.random.Generator, cmd_id: int, scales: dict[str, flo
         name = f.name
         if name == "cmd_id":
             kwargs[name] = cmd_id
+        elif name == "session":  # mostly the open one; sometimes none or another program's
+            kwargs[name] = SESSION if rng.random() < 0.9 else int(rng.choice([0, 1, 0xFFFF]))
+        elif name in ("version_min", "version_max"):
+            kwargs[name] = int(rng.choice([2, 2, 2, 2, 0, 1, 3, 255]))
+        elif name == "bit":
+            kwargs[name] = int(rng.integers(0, 40))
         elif name == "target_deg":
             if rng.random() < 0.3:
                 kwargs[name] = _TARGET_SPECIAL[rng.integers(len(_TARGET_SPECIAL))]
@@ -207,19 +218,30 @@ def _frame_for(rng: np.random.Generator, cmd_id: int, seq: int, scales: dict[str
         return frame.frame_raw(t, payload, seq), "other_type"
     if r < 0.95 and last is not None:
         return last, "repeat"  # a retry: same cmd_id, same type
-    msg = _motion_message(rng, cmd_id, scales["travel"])
+    msg = dataclasses.replace(_motion_message(rng, cmd_id, scales["travel"]), session=SESSION)
     return frame.encode(msg, seq), "motion"
 
 
-def _expected_answer(data: bytes) -> tuple[int, tuple[type, ...]] | None:
-    """``(cmd_id, reply classes)`` the board owes for the frame ``data``, or None."""
+def _expected_answer(data: bytes, state: dict[str, int]) -> tuple[int, tuple[type, ...]] | None:
+    """``(cmd_id, reply classes)`` the board owes for the frame ``data``, or None, by
+    docs/protocol.md sections 5 and 11; ``state["session"]`` is the session a ``Hello``
+    opened (updated here as the spec says the board does)."""
     msg = frame.Decoder().feed(data)[0]
     if isinstance(msg, Malformed):
         return msg.cmd_id, (Nack,)
+    cmd_id = getattr(msg, "cmd_id", 0)
     if type(msg) not in COMMAND_TYPES:
-        return None  # a board -> PC message sent to the board: not a command
-    reply = _ANSWER.get(type(msg), (Ack, Nack))
-    return (getattr(msg, "cmd_id", None), reply)
+        return cmd_id, (Nack,)  # a board -> PC message sent to the board: NOT_A_COMMAND
+    if isinstance(msg, Hello):
+        if msg.version_min <= 2 <= msg.version_max and msg.session != 0:
+            state["session"] = msg.session
+            return cmd_id, (HelloReply,)
+        return cmd_id, (Nack,)
+    if msg.session != state["session"] or not state["session"]:
+        return cmd_id, (Nack,)  # NO_SESSION / STALE_SESSION
+    if isinstance(msg, Heartbeat):
+        return None  # a heartbeat of the session is not answered
+    return cmd_id, _ANSWER.get(type(msg), (Ack, Nack))
 
 
 def fuzz_commands(
@@ -253,7 +275,12 @@ def fuzz_commands(
         "kd": 0.01,
     }
     decoder = frame.Decoder()
-    pc_seq = 0
+    # Like any PC, open a session first (not counted among the fuzzed frames).
+    sim.pc_write(frame.encode(Hello(0, session=SESSION), 0))
+    sim.step(4)
+    decoder.feed(sim.pc_read())
+    state = {"session": SESSION}
+    pc_seq = 1
     cmd_id = 1
     last: bytes | None = None
     pending: list[tuple[int, tuple[type, ...]]] = []
@@ -267,7 +294,7 @@ def fuzz_commands(
                 pc_seq = (pc_seq + 1) & 0xFF
                 report.frames_sent += 1
                 report.kinds[kind] = report.kinds.get(kind, 0) + 1
-                expected = _expected_answer(data)
+                expected = _expected_answer(data, state)
                 if expected is not None:
                     pending.append(expected)
                     report.answers_expected += 1
@@ -373,7 +400,8 @@ def travel_search(
         sim = Simulation(bench, seed=int(rng.integers(1 << 30)))
         times = np.sort(rng.integers(0, ticks_per_sequence - 250, commands_per_sequence))
         times[0] = 0
-        seq = 0
+        sim.pc_write(frame.encode(Hello(0, session=SESSION), 0))  # open the session
+        seq = 1
         tick = 0
         for i, t in enumerate(times):
             if t > tick:
@@ -384,7 +412,7 @@ def travel_search(
                 if i == 0
                 else _motion_message(rng, i + 1, travel)
             )
-            sim.pc_write(frame.encode(msg, seq))
+            sim.pc_write(frame.encode(dataclasses.replace(msg, session=SESSION), seq))
             seq += 1
         sim.step(ticks_per_sequence - tick)
         log = sim.log()
