@@ -18,6 +18,7 @@ The rate a machine can draw is measured in ``benchmarks/bench_liveplot.py``.
 from __future__ import annotations
 
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -162,15 +163,20 @@ class LivePlot:
             ax.grid(True, alpha=0.3)
             ax.set_ylim(-1.0, 1.0)
         ax_v.legend(loc="upper left", fontsize="small")
-        self._status = ax_v.text(
-            0.995, 0.97, "", transform=ax_v.transAxes, ha="right", va="top",
-            fontsize="small", animated=True,
-        )  # fmt: skip
+        # The status line sits in the top margin, clear of the lines: rendering text costs
+        # as much as all the lines, so it is rendered a few times a second and its pixels
+        # are reused in between.
+        self._status = self.fig.text(
+            0.97, 0.985, "", ha="right", va="top", fontsize="small", animated=True
+        )
         if title:
-            self.fig.suptitle(title)
-        self.fig.subplots_adjust(left=0.12, right=0.97, top=0.93 if title else 0.97, bottom=0.08)
+            self.fig.text(0.12, 0.985, title, ha="left", va="top", fontsize="medium")
+        self.fig.subplots_adjust(left=0.12, right=0.97, top=0.95, bottom=0.08)
         self._background: Any = None
         self._size: Any = None
+        self._status_pixels: Any = None
+        self._status_due_wall_s = 0.0
+        self.status_interval_s = 0.25
 
     def update(self) -> bool:
         """Put the latest window on the lines; return True if a y range changed (the
@@ -192,11 +198,13 @@ class LivePlot:
                 if lo < y0 or hi > y1 or span < (y1 - y0) / 4.0:
                     ax.set_ylim(lo - 0.5 * span, hi + 0.5 * span)
                     rescale = True
-            self._status.set_text(
-                f"{self.buffer.received} frames received; "
-                f"v {w['vel_dps'][-1]:.1f} °/s, pos {w['pos_deg'][-1]:.2f} °"
-            )
+            self._last = (w["vel_dps"][-1], w["pos_deg"][-1])
         return rescale
+
+    def status_text(self) -> str:
+        """The status line: frames received, latest velocity and position."""
+        vel, pos = getattr(self, "_last", (0.0, 0.0))
+        return f"{self.buffer.received} frames received; v {vel:.1f} °/s, pos {pos:.2f} °"
 
     def draw(self) -> None:
         """Update and render a frame on the figure's canvas (window or Agg)."""
@@ -212,7 +220,15 @@ class LivePlot:
             canvas.restore_region(self._background)
         for line, _ in self._lines:
             line.axes.draw_artist(line)
-        self.axes[0].draw_artist(self._status)
+        now_wall_s = time.monotonic()
+        if rescale or self._status_pixels is None or now_wall_s >= self._status_due_wall_s:
+            self._status_due_wall_s = now_wall_s + self.status_interval_s
+            self._status.set_text(self.status_text())
+            self.fig.draw_artist(self._status)
+            box = self._status.get_window_extent().expanded(1.05, 1.3)
+            self._status_pixels = canvas.copy_from_bbox(box)
+        else:
+            canvas.restore_region(self._status_pixels)
         canvas.blit(self.fig.bbox)
         self.frames += 1
 
@@ -221,6 +237,7 @@ class LivePlot:
         for line, _ in self._lines:
             line.set_animated(False)
         self._status.set_animated(False)
+        self._status.set_text(self.status_text())
         try:
             self.fig.savefig(path, dpi=dpi)
         finally:
@@ -228,6 +245,7 @@ class LivePlot:
                 line.set_animated(True)
             self._status.set_animated(True)
             self._background = None
+            self._status_pixels = None
 
 
 def has_display() -> bool:

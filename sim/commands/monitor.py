@@ -124,21 +124,23 @@ def main(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))
-        elif args.url.startswith("sim://"):
-            from sim.simlink import SimulatedLink
-
-            # sim://[BENCH.toml]: a simulated board in this process, in real time
-            link = stack.enter_context(SimulatedLink.open(args.url[len("sim://") :] or None))
         else:
-            from serial_protocol.transport import SerialLink
-
             capture = None
             if args.capture:
                 from sim.capture import TimestampedCapture
 
                 # each chunk with its arrival time, for replay at the recorded pace
                 capture = TimestampedCapture(stack.enter_context(_open(args.capture, "wb")))
-            link = stack.enter_context(SerialLink.open(args.url, args.baud, capture=capture))
+            if args.url.startswith("sim://"):
+                from sim.simlink import SimulatedLink
+
+                # sim://[BENCH.toml]: a simulated board in this process, in real time
+                bench = args.url[len("sim://") :] or None
+                link = stack.enter_context(SimulatedLink.open(bench, capture=capture))
+            else:
+                from serial_protocol.transport import SerialLink
+
+                link = stack.enter_context(SerialLink.open(args.url, args.baud, capture=capture))
         writer = None
         if args.csv:
             writer = TelemetryCsvWriter(stack.enter_context(_open(args.csv, "w")))
