@@ -111,7 +111,8 @@ class LivePlot:
     Drawing is cheap per frame: the axes, ticks and grid are rendered once into a
     background and only the lines are drawn over it (matplotlib's blitting); the whole
     figure is rendered again only when a y range has to change (the data left it, or
-    fill less than a quarter of it) or the canvas was resized.
+    fill less than a quarter of it; at most every ``rescale_interval_s``) or the canvas was
+    resized.
 
     Args:
         buffer: where the frames come from.
@@ -177,6 +178,8 @@ class LivePlot:
         self._status_pixels: Any = None
         self._status_due_wall_s = 0.0
         self.status_interval_s = 0.25
+        self.rescale_interval_s = 0.5
+        self._rescale_due_wall_s = 0.0
 
     def update(self) -> bool:
         """Put the latest window on the lines; return True if a y range changed (the
@@ -184,6 +187,10 @@ class LivePlot:
         w = self.buffer.window(self.window_s)
         t = w["t_s"]
         rescale = False
+        # A full render costs several frames: at most one per rescale_interval_s (a line
+        # may leave its axis for that long, e.g. during a fast ramp).
+        now_wall_s = time.monotonic()
+        may_rescale = now_wall_s >= self._rescale_due_wall_s
         if len(t):
             x = t - t[-1]
             for line, name in self._lines:
@@ -195,9 +202,11 @@ class LivePlot:
                 span = max(hi - lo, 1e-3)
                 # Grow with room to spare (a ramp would otherwise force a full render per
                 # frame); shrink only when the data fill less than a quarter of the axis.
-                if lo < y0 or hi > y1 or span < (y1 - y0) / 4.0:
+                if may_rescale and (lo < y0 or hi > y1 or span < (y1 - y0) / 4.0):
                     ax.set_ylim(lo - 0.5 * span, hi + 0.5 * span)
                     rescale = True
+            if rescale:
+                self._rescale_due_wall_s = now_wall_s + self.rescale_interval_s
             self._last = (w["vel_dps"][-1], w["pos_deg"][-1])
         return rescale
 

@@ -176,7 +176,8 @@ def paper_figure(
         # The measured curve is drawn wide and translucent, the planned one thin on top:
         # they coincide to a fraction of a °/s, and both must stay visible. Later curves
         # are narrower, so a run that retraces an earlier one does not hide it.
-        wide = 7.0 - 5.0 * k / max(n - 1, 1) if n > 1 else 3.0
+        widest = 2.0 + 1.6 * (n - 1)  # 3.6 for two curves, 6.8 for four
+        wide = widest - (widest - 2.0) * k / (n - 1) if n > 1 else 3.0
         ax_v.plot(t, tr.vel_dps, color=c.color, lw=wide, alpha=0.55, label=c.label)
         ax_v.plot(t, tr.sp_vel_dps, "--", color="black", lw=0.8)
         ax_e.plot(t, tr.vel_dps - tr.sp_vel_dps, color=c.color, lw=0.8, alpha=0.9)
