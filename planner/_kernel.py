@@ -76,7 +76,11 @@ def segments(x0, x1, v0, v1, v_max, a_acc, a_dec):
     fv1 = sigma * v1
     acc, dec = a_acc, a_dec
     # Displacement to the peak vp >= 0 and back: vp^2 / h - c1 - c2, 1/h = 1/2acc + 1/2dec.
-    h = acc if acc == dec else 2.0 * acc * dec / (acc + dec)
+    # (1/h from the two reciprocals: 2 acc dec / (acc + dec) underflows to 0 for a
+    # subnormal limit, and a division by it would raise; an infinite 1/h gives inf times.)
+    sym = acc == dec
+    h_inv = 0.5 / acc + 0.5 / dec
+    h = acc if sym else 1.0 / h_inv
     c1 = fv * fv / (2.0 * (acc if fv >= 0.0 else dec))
     c2 = fv1 * fv1 / (2.0 * (dec if fv1 >= 0.0 else acc))
     m = max(fv, fv1)
@@ -86,7 +90,8 @@ def segments(x0, x1, v0, v1, v_max, a_acc, a_dec):
     t_cruise = 0.0
     if vp >= v_max:
         vp = v_max
-        t_cruise = max((fd - (v_max * v_max / h - c1 - c2)) / v_max, 0.0)
+        ramps = v_max * v_max / acc if sym else v_max * v_max * h_inv
+        t_cruise = max((fd - (ramps - c1 - c2)) / v_max, 0.0)
         up = vp - fv
         down = vp - fv1
     else:
@@ -189,8 +194,11 @@ def pulse_phases(v0, a0, v1, a_lim, j_max):
     _, _, braked, ph = segments(v0, v1, a0, 0.0, a_lim, j_max, j_max)
     phases = phase_list(ph, braked)
     out = np.array(phases).T.copy()
-    dist, dur = integrate(out, 0, len(phases), v0, a0)
-    return phases, dist, dur
+    # numpy scalars here: an overflow (extreme arguments) gives inf as it does compiled,
+    # without a warning on stderr; the caller refuses a non-finite profile.
+    with np.errstate(all="ignore"):
+        dist, dur = integrate(out, 0, len(phases), v0, a0)
+    return phases, float(dist), float(dur)
 
 
 @numba.njit(cache=True)

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import math
 
-from planner._checks import check_finite, check_positive
+from planner._checks import check_finite, check_positive, check_reaches
 from planner._kernel import pulse_phases, scurve_phases
 from planner.profile import Profile, build_profile
 
@@ -159,7 +159,9 @@ def plan_scurve(
             case = "a" if cruise else "b"
         else:
             case = "d" if cruise else "c"
-    return build_profile("scurve", case, p0, v0, a0, segments, p1, v1)
+    prof = build_profile("scurve", case, p0, v0, a0, segments, p1, v1)
+    check_reaches(prof)
+    return prof
 
 
 def plan_scurve_stop(

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 import math
 
-from planner._checks import check_finite, check_positive
+from planner._checks import check_finite, check_positive, check_reaches
 from planner._kernel import trapezoid_phases
 from planner.profile import Profile, build_profile
 
@@ -113,7 +113,9 @@ def plan_trapezoid(
             case = "d" if cruise else "c"
         if braked:
             case = "brake+" + case
-    return build_profile("trapezoid", case, p0, v0, 0.0, segments, p1, v1)
+    prof = build_profile("trapezoid", case, p0, v0, 0.0, segments, p1, v1)
+    check_reaches(prof)
+    return prof
 
 
 def plan_stop(p0: float, *, a_max: float, v0: float = 0.0) -> Profile:

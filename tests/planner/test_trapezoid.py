@@ -310,3 +310,13 @@ def test_property_asymmetric_valid_and_between_the_symmetric_plans(
     fast = plan_trapezoid(0.0, dist, a_max=max(a_max, d_max), **kw).duration
     if abs(v0) <= v_max:
         assert fast * (1 - 1e-9) <= prof.duration <= slow * (1 + 1e-9)
+
+
+def test_subnormal_limits_are_refused_with_a_value_error_not_a_crash():
+    """A subnormal limit beside a huge distance: the phases overflow or cancel. That is a
+    ValueError naming p1 (it was a ZeroDivisionError, then a profile 4.3 s long that
+    jumped to its target), as for every other plan floating point cannot hold."""
+    with pytest.raises(ValueError, match=r"^p1 = 3.4e\+173: cannot be planned"):
+        plan_trapezoid(0.07, 3.4e173, v_max=6e-23, a_max=5e-324, v0=0.13, d_max=0.03)
+    with pytest.raises(ValueError, match=r"^p1 = -1e\+308: cannot be planned"):
+        plan_trapezoid(-1.6e-45, -1e308, v_max=1e-75, a_max=5e-324, d_max=0.02)
