@@ -392,6 +392,16 @@ class FirmwareParams:
                 self.limits.v_max_dps,
                 f"must be below safety.over_speed_dps = {self.safety.over_speed_dps}",
             )
+        # The watchdog counts whole ticks: at or below one tick it would never see a frame
+        # arrive in time (and rounds to 0 ticks, which is "off").
+        watchdog_s = self.safety.watchdog_s
+        if watchdog_s != 0.0 and not watchdog_s > self.servo.dt_s:
+            _fail(
+                "watchdog_s",
+                watchdog_s,
+                f"must be 0 (off) or longer than one servo tick ({self.servo.dt_s:g} s at "
+                f"servo.tick_hz = {self.servo.tick_hz:g})",
+            )
         # An encoder can only be unwrapped if the motor turns < half a revolution per tick
         # off the prediction; the over-speed trip must sit below one revolution per tick.
         rev_per_tick_dps = 360.0 / GEAR_RATIO * self.servo.tick_hz

@@ -25,9 +25,11 @@ import numpy as np
 
 import bench_configs
 from firmware_model import params as fw_params
+from firmware_model import units
 from serial_protocol import messages as msg
 from serial_protocol.exceptions import ConfigError
 from sim import params as sim_params
+from sim import wire
 
 __all__ = [
     "BenchConfig",
@@ -184,6 +186,15 @@ def _read_toml(path: Path) -> dict[str, Any]:
             return tomllib.load(fh)
     except FileNotFoundError:
         raise ConfigError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a TOML file") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(
+            f"{path}: not valid TOML: not UTF-8 (byte {exc.object[exc.start]:#04x} at offset "
+            f"{exc.start})"
+        ) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: not valid TOML: {exc}") from None
 
@@ -203,6 +214,10 @@ def _field_types(cls: type) -> dict[str, Any]:
 
 def _type_problem(value: Any, hint: Any) -> str:
     """Why ``value`` cannot be a field declared ``hint`` ('' if it can, or if unsure)."""
+    if isinstance(value, list):
+        # A file describes one bench: one value per key. Per-member arrays for a batch are
+        # given to ``Simulation(overrides=...)``, not written in a file.
+        return "must be a single value, not a list (one bench per file)"
     is_number = isinstance(value, int | float) and not isinstance(value, bool)
     if hint is float and not is_number:
         return "must be a number"
@@ -216,12 +231,14 @@ def _type_problem(value: Any, hint: Any) -> str:
 
 
 def _coerce(value: Any, hint: Any) -> Any:
-    """TOML value -> field value: ints where a float is declared become floats, lists
-    become arrays; anything else goes to the dataclass's own checks unchanged."""
+    """TOML value -> field value: ints where a float is declared become floats (an int too
+    large for a float is refused by the check that follows); anything else goes to the
+    dataclass's own checks unchanged."""
     if hint is float and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if isinstance(value, list):
-        return np.asarray(value, dtype=float)
+        try:
+            return float(value)
+        except OverflowError:
+            return math.inf
     return value
 
 
@@ -246,6 +263,8 @@ def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
         text = str(exc)
         key = text.split(" = ", 1)[0] if " = " in text else "?"
         raw = values.get(key, "?")
+        # "key = value: reason" from the dataclass: say the key and value once
+        text = text.removeprefix(f"{key} = {kwargs.get(key)!r}: ")
         raise ConfigError(f"{_where(file, table)} {key} = {raw!r}: {text}") from None
 
 
@@ -295,24 +314,59 @@ def bench_from_tables(tables: Mapping[str, Any], file: Any = None) -> BenchConfi
         loop=tables["loop"],
         path=Path(file) if file is not None else None,
     )
-    _check_consistency(bench, file)
+    check_bench(bench, file)
     return bench
 
 
-def _check_consistency(bench: BenchConfig, file: Any) -> None:
-    """The firmware's nominal numbers must describe the bench it runs on."""
+#: Plant values the firmware model is written for (``firmware_model/units.py``): its counts
+#: to degrees scaling, the Q16.16 position format (one count = 18 raw units exactly) and the
+#: unwrapping all assume them, so a bench with other values would be simulated wrongly.
+FIRMWARE_FIXED: tuple[tuple[str, str, float, str], ...] = (
+    ("encoder", "bits", units.ENCODER_BITS, "the AS5048's 14 bits"),
+    ("gearbox", "ratio", units.GEAR_RATIO, "the 80:1 gearmotor"),
+)
+
+
+def check_bench(bench: BenchConfig, file: Any = None, *, nominal: bool = True) -> None:
+    """Cross-table checks of a whole bench: the plant values the firmware hard-codes must be
+    those, and (``nominal``) the firmware's nominal numbers must describe the plant it runs
+    on. Raises ``ConfigError`` naming the key that is wrong. ``Simulation`` overrides are
+    checked with ``nominal=False``: a plant spread around the firmware's nominal values is
+    what a robustness study is made of."""
+    plant = bench.plant
+    for table, key, fixed, what in FIRMWARE_FIXED:
+        value = getattr(getattr(plant, table), key)
+        if not np.all(np.asarray(value) == fixed):
+            raise ConfigError(
+                f"{_where(file, table)} {key} = {_plain(value)!r}: the firmware model is "
+                f"written for {what} ({key} = {fixed:g}; firmware_model/units.py), so no "
+                "other value is accepted"
+            )
+    if not nominal:
+        return
     cur = bench.firmware.current
     pairs = [
-        ("controller.current", "pwm_arr", cur.pwm_arr, bench.plant.bridge.arr),
-        ("controller.current", "supply_v", cur.supply_v, bench.plant.supply.voltage_v),
-        ("controller.current", "adc_bits", cur.adc_bits, bench.plant.current_sense.adc_bits),
+        ("controller.current", "pwm_arr", cur.pwm_arr, plant.bridge.arr, "bridge"),
+        ("controller.current", "supply_v", cur.supply_v, plant.supply.voltage_v, "supply"),
+        (
+            "controller.current",
+            "adc_bits",
+            cur.adc_bits,
+            plant.current_sense.adc_bits,
+            "current_sense",
+        ),
     ]
-    for table, key, fw_value, plant_value in pairs:
+    for table, key, fw_value, plant_value, plant_table in pairs:
         if not np.all(np.asarray(fw_value) == np.asarray(plant_value)):
             raise ConfigError(
-                f"{_where(file, table)} {key} = {fw_value!r}: the bench has {plant_value!r} "
-                "(firmware and plant must agree)"
+                f"{_where(file, table)} {key} = {_plain(fw_value)!r}: the bench's "
+                f"[{plant_table}] gives {_plain(plant_value)!r} (firmware and plant must agree)"
             )
+
+
+def _plain(value: Any) -> Any:
+    """A parameter as written in a file (arrays as lists) for messages."""
+    return value.tolist() if isinstance(value, np.ndarray) else value
 
 
 def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
@@ -419,7 +473,17 @@ def _command(entry: Any, index: int, file: Path, duration_s: float) -> ScriptedC
             f"{where} target_mdeg = {entry.get('target_mdeg')!r}: give exactly "
             "one of target_mdeg and target_deg"
         )
-    return ScriptedCommand(float(t_s), ctype, tuple(values))
+    command = ScriptedCommand(float(t_s), ctype, tuple(values))
+    if ctype != "raw":
+        # A value the wire cannot carry is the file's error, not the board's to NACK.
+        problem = wire.wire_problem(command.message(1))
+        if problem:
+            field_name = problem.split(" = ", 1)[0]
+            key = field_name
+            if field_name == "target_deg" and "target_mdeg" in entry:
+                key = "target_mdeg"
+            raise ConfigError(f"{where} {key} = {entry.get(key)!r}: {problem}")
+    return command
 
 
 _EXPERIMENT_KEYS = {"bench", "duration_s", "command", "title"}

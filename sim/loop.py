@@ -38,7 +38,7 @@ from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection
-from sim.config import TABLES, BenchConfig, Experiment
+from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
@@ -217,6 +217,8 @@ def apply_overrides(bench: BenchConfig, overrides: Mapping[str, Any]) -> BenchCo
                 bench = dataclasses.replace(bench, **{container: new_holder})
         except (ValueError, TypeError) as exc:
             raise ConfigError(f"overrides: [{table}] {key} = {value!r}: {exc}") from None
+    if overrides:
+        check_bench(bench, "overrides", nominal=False)
     return bench
 
 

@@ -235,6 +235,18 @@ class EncoderParams:
         return 1 << self.bits
 
 
+def _largest_board_frame() -> tuple[int, str]:
+    """Bytes and name of the longest frame the board sends (from the codec)."""
+    from serial_protocol import frame, messages
+
+    sizes = [
+        (frame.frame_bytes(cls), cls.__name__)
+        for cls in vars(messages).values()
+        if isinstance(cls, type) and getattr(cls, "MSG_TYPE", 0) >= 0x80
+    ]
+    return max(sizes)
+
+
 @dataclass(frozen=True)
 class UartParams:
     """The board's UART: FIFO size and seeded line faults, per byte, in both directions
@@ -249,11 +261,13 @@ class UartParams:
     burst_bytes: int = 4
 
     def __post_init__(self) -> None:
+        largest, name = _largest_board_frame()
         _check(
             self,
             "fifo_bytes",
-            isinstance(self.fifo_bytes, int) and self.fifo_bytes >= 16,
-            "must be an integer >= 16",
+            isinstance(self.fifo_bytes, int) and largest <= self.fifo_bytes <= 1 << 24,
+            f"must be an integer in [{largest}, {1 << 24}]: the TX FIFO must hold the largest "
+            f"frame the board sends ({largest} bytes, {name})",
         )
         rates = ("bit_flip_rate", "drop_rate", "insert_rate", "burst_rate")
         for name in rates:

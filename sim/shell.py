@@ -149,11 +149,23 @@ def _number(text: str, word: str, name: str) -> float:
     return value
 
 
+def _fit(text: str, message: Any) -> None:
+    """Refuse a value the wire cannot carry (asked of the codec, ``sim.wire``)."""
+    from sim.wire import wire_problem
+
+    problem = wire_problem(message)
+    if problem:
+        raise CommandError(f"{text!r}: {problem}")
+
+
 def parse_command(client: Any, text: str) -> ParsedCommand:
     """Check one command line (see :data:`COMMANDS`) and bind it to ``client``.
 
-    Raises ``CommandError`` naming the bad word; nothing is sent until the result is called.
+    Raises ``CommandError`` naming the bad word or the value that does not fit its wire
+    field; nothing is sent (``client`` is not touched) until the result is called.
     """
+    from serial_protocol import messages as m
+
     try:
         words = shlex.split(text)
     except ValueError as exc:  # an unclosed quote
@@ -184,9 +196,11 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         if profile is Profile.SCURVE and not values["j_max_dps3"] > 0:
             raise CommandError(f"{text!r}: an scurve move needs J_MAX_DPS3 > 0")
         fields = {**values, "profile": profile}
+        _fit(text, m.Move(0, **values, profile=profile))
         return ParsedCommand(verb, lambda: client.move(**values, profile=profile), fields)
     if verb == "stop":
         values = numbers(["a_max_dps2"], 0)
+        _fit(text, m.Stop(0, *values.values()))
         return ParsedCommand(verb, lambda: client.stop(*values.values()), values)
     if verb == "gains":
         if len(rest) != 4:
@@ -194,6 +208,7 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         which = loop(rest[0])
         rest = rest[1:]
         values = numbers(["kp", "ki", "kd"], 3)
+        _fit(text, m.SetGains(0, which, **values))
         return ParsedCommand(
             verb, lambda: client.set_gains(which, **values), {"loop": which, **values}
         )
@@ -205,6 +220,7 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
     if verb == "limits":
         names = ["v_max_dps", "a_max_dps2", "current_limit_a", "following_error_deg"]
         values = numbers([*names, "over_current_trip_a"], 4)
+        _fit(text, m.SetLimits(0, **values))
         return ParsedCommand(verb, lambda: client.set_limits(**values), values)
     if verb == "fault":
         bit = numbers(["bit"], 1)["bit"]
@@ -221,10 +237,10 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
     if rest:
         raise CommandError(f"{text!r}: {verb} takes no arguments")
     simple: dict[str, Callable[[], Any]] = {
-        "clear": client.clear_fault,
-        "status": client.status,
-        "hello": client.hello,
-        "getlimits": client.get_limits,
+        "clear": lambda: client.clear_fault(),
+        "status": lambda: client.status(),
+        "hello": lambda: client.hello(),
+        "getlimits": lambda: client.get_limits(),
         "enable": lambda: client.set_enable(True),
         "disable": lambda: client.set_enable(False),
     }

@@ -9,6 +9,8 @@ import sys
 from collections.abc import Callable
 from typing import Any
 
+from sim.commands._common import integer, number
+
 HELP = "decode a raw captured serial byte stream to CSV and print link statistics"
 
 CHUNK_BYTES = 1 << 16
@@ -28,11 +30,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write the telemetry to this CSV file ('-' for stdout; default: FILE.csv)",
     )
     parser.add_argument(
-        "--tick-hz", type=float, default=500.0, help="servo rate for the t_s column (500)"
+        "--tick-hz",
+        type=number(lo=0.0, lo_open=True, hi=1e6),
+        default=500.0,
+        help="servo rate for the t_s column (500)",
     )
     parser.add_argument(
         "--can-base-id",
-        type=lambda text: int(text, 0),
+        type=integer(0, 0x7FF),
         default=0x100,
         help="CAN logs: identifier of message type 0 (0x100)",
     )
@@ -45,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def main(args: argparse.Namespace) -> int:
     import contextlib
+    import os
     from collections import Counter
 
     from serial_protocol.exceptions import CommandError
@@ -73,18 +79,27 @@ def main(args: argparse.Namespace) -> int:
                 source = stack.enter_context(open(args.file, "rb"))
         except OSError as exc:
             raise CommandError(f"cannot read {args.file!r}: {exc.strerror}") from exc
-        try:
-            if csv_path == "-":
-                out = sys.stdout
-            else:
-                out = stack.enter_context(open(csv_path, "w", newline=""))
-        except OSError as exc:
-            raise CommandError(f"cannot write {csv_path!r}: {exc.strerror}") from exc
-        writer = TelemetryCsvWriter(out, args.tick_hz)
+        if csv_path != "-" and os.path.isdir(csv_path):
+            raise CommandError(f"cannot write {csv_path!r}: it is a folder")
+        writer: TelemetryCsvWriter | None = None
+
+        def open_writer() -> TelemetryCsvWriter:
+            # Opened at the first decoded message: a file that holds none is an error and
+            # leaves no empty CSV behind.
+            try:
+                if csv_path == "-":
+                    out = sys.stdout
+                else:
+                    out = stack.enter_context(open(csv_path, "w", newline=""))
+            except OSError as exc:
+                raise CommandError(f"cannot write {csv_path!r}: {exc.strerror}") from exc
+            return TelemetryCsvWriter(out, args.tick_hz)
 
         def handle(messages: list) -> None:
-            nonlocal last_tick
+            nonlocal last_tick, writer
             for msg in messages:
+                if writer is None:
+                    writer = open_writer()
                 kinds[type(msg).__name__] += 1
                 if isinstance(msg, Telemetry):
                     writer.write(msg)
@@ -102,6 +117,13 @@ def main(args: argparse.Namespace) -> int:
                 total_bytes += len(chunk)
                 handle(decoder.feed(chunk))
             handle(decoder.flush())
+        if writer is None:
+            what = "CAN frame of the protocol" if is_can_log else "frame of the protocol"
+            size = "" if is_can_log else f" in {total_bytes} bytes"
+            raise CommandError(
+                f"{args.file}: no {what} found{size} (not a capture of the turntable link?); "
+                "nothing written"
+            )
 
     if is_can_log:
         c = reassembler.stats

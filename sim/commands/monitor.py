@@ -14,6 +14,9 @@ import argparse
 import sys
 from typing import Any
 
+from serial_protocol import messages as _msg
+from sim.commands._common import integer, number, wire_number
+
 HELP = "talk to a board or to 'serve --pty': send commands, show status, record telemetry CSV"
 
 
@@ -23,16 +26,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="serial port or pyserial URL, can://INTERFACE/CHANNEL, or sim:// (a simulated "
         "board in this process; sim://BENCH.toml for another bench)",
     )
-    parser.add_argument("--baud", type=int, default=460800, help="serial baud rate (460800)")
-    parser.add_argument("--move", type=float, metavar="TARGET_DEG", help="move to this target")
-    parser.add_argument("--v-max", type=float, default=990.0, help="v_max in deg/s (990)")
-    parser.add_argument("--a-max", type=float, default=148.0, help="a_max in deg/s^2 (148)")
-    parser.add_argument("--j-max", type=float, default=0.0, help="j_max in deg/s^3 (s-curve)")
+    parser.add_argument(
+        "--baud", type=integer(1, 100_000_000), default=460800, help="serial baud rate (460800)"
+    )
+    parser.add_argument(
+        "--move",
+        type=wire_number(_msg.Move, "target_deg"),
+        metavar="TARGET_DEG",
+        help="move to this target (axis degrees; the paper's 3e6 is millidegrees: 3000)",
+    )
+    parser.add_argument(
+        "--v-max", type=wire_number(_msg.Move, "v_max_dps"), default=990.0,
+        help="v_max in deg/s (990)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--a-max", type=wire_number(_msg.Move, "a_max_dps2"), default=148.0,
+        help="a_max in deg/s^2 (148)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--j-max", type=wire_number(_msg.Move, "j_max_dps3"), default=0.0,
+        help="j_max in deg/s^3 (s-curve)",
+    )  # fmt: skip
     parser.add_argument("--profile", choices=("trapezoid", "scurve", "step"), default="trapezoid")
     parser.add_argument(
         "--interrupt",
         nargs=2,
-        type=float,
+        type=wire_number(_msg.Move, "target_deg"),
         action="append",
         default=[],
         metavar=("AFTER_S", "TARGET_DEG"),
@@ -40,7 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "repeatable",
     )
     parser.add_argument(
-        "--stop", type=float, metavar="AFTER_S", help="send a stop after AFTER_S seconds"
+        "--stop",
+        type=number(lo=0.0, hi=1e6),
+        metavar="AFTER_S",
+        help="send a stop after AFTER_S seconds",
     )
     parser.add_argument(
         "--gains",
@@ -53,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--limits",
         nargs=4,
-        type=float,
+        type=wire_number(_msg.SetLimits, "v_max_dps"),
         metavar=("V_MAX", "A_MAX", "CURRENT_A", "FOLLOW_DEG"),
         help="set the limits",
     )
@@ -66,9 +88,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     enable = parser.add_mutually_exclusive_group()
     enable.add_argument("--enable", action="store_true", help="enable the bridge")
     enable.add_argument("--disable", action="store_true", help="disable the bridge")
-    parser.add_argument("--telemetry", type=int, metavar="DECIMATION", help="set decimation")
     parser.add_argument(
-        "--duration", type=float, default=5.0, help="seconds to listen after the commands (5)"
+        "--telemetry",
+        type=wire_number(_msg.SetTelemetry, "decimation"),
+        metavar="DECIMATION",
+        help="set decimation (1 = every tick, 0 = off)",
+    )
+    parser.add_argument(
+        "--duration",
+        type=number(lo=0.0, hi=1e6),
+        default=5.0,
+        help="seconds to listen after the commands (5)",
     )
     parser.add_argument("--csv", metavar="FILE", help="record the telemetry to this CSV")
     parser.add_argument(
@@ -95,8 +125,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="save the live plot's last frame to FILE (.png/.svg/.pdf; works without a display)",
     )
-    parser.add_argument("--ack-timeout", type=float, default=0.1, help="seconds (0.1)")
-    parser.add_argument("--retries", type=int, default=3, help="retries per command (3)")
+    parser.add_argument(
+        "--ack-timeout", type=number(lo=0.0, lo_open=True, hi=60.0), default=0.1,
+        help="seconds (0.1)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--retries", type=integer(0, 100), default=3, help="retries per command (3)"
+    )
     parser.add_argument("--quiet", action="store_true", help="no live status line")
 
 
@@ -114,13 +149,15 @@ def main(args: argparse.Namespace) -> int:
     from serial_protocol.telemetry_csv import TelemetryCsvWriter
     from sim.shell import describe
 
-    if not args.ack_timeout > 0 or args.retries < 0:
-        raise CommandError(
-            f"--ack-timeout {args.ack_timeout!r} must be > 0 and --retries {args.retries!r} >= 0"
-        )
+    # Every command is checked before the port is opened: a bad value is one line, exit 2.
+    for after_s, _ in args.interrupt:
+        if after_s < 0.0:
+            raise CommandError(f"--interrupt {after_s!r}: AFTER_S must be >= 0 seconds")
     live = _live_plot(args)
     # checked before connecting: a bad --gains-from sends nothing
     script = _scripted(args)
+    for text in script + [_move_text(args, t) for _, t in args.interrupt]:
+        parse_command(None, text)
     with contextlib.ExitStack() as stack:
         if args.url.startswith("can://"):
             link = stack.enter_context(_open_can(args.url, args.capture))

@@ -7,6 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from sim.commands._common import output_dir
+
 HELP = "reproduce the paper's Fig. 6-8 / Table 1 and seed 002's tables: PNGs and REPORT.md"
 
 
@@ -38,7 +40,8 @@ def execute(args: argparse.Namespace):
 def main(args: argparse.Namespace) -> int:
     from sim.progress import format_duration
 
-    result = execute(args)
+    with output_dir(args.out, ("*.png", "REPORT.md", "telemetry/*.csv")):
+        result = execute(args)
     if not args.quiet:
         print(
             f"reproduce: {result.simulated_s:.0f} s simulated in "

@@ -6,6 +6,9 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import Any
+
+from sim.commands._common import integer, output_dir
 
 HELP = "run a scripted experiment (TOML) and write log.csv and plot.png"
 
@@ -13,20 +16,27 @@ HELP = "run a scripted experiment (TOML) and write log.csv and plot.png"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="experiment TOML file (see README)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--seed", type=int, default=0, help="noise and line-fault seed")
+    parser.add_argument(
+        "--seed", type=integer(0, 2**63 - 1), default=0, help="noise and line-fault seed (>= 0)"
+    )
     parser.add_argument("--no-plot", action="store_true", help="skip plot.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar or summary")
 
 
 def main(args: argparse.Namespace) -> int:
-    from sim import plant_kernel
     from sim.config import load_experiment
+
+    exp = load_experiment(args.config)
+    with output_dir(args.out, ("log.csv", "plot.png")):
+        return _run(exp, args)
+
+
+def _run(exp: Any, args: argparse.Namespace) -> int:
+    from sim import plant_kernel
     from sim.csvlog import write_csv
     from sim.loop import run
     from sim.progress import Progress
 
-    exp = load_experiment(args.config)
-    args.out.mkdir(parents=True, exist_ok=True)
     # The compiled plant step loads once per process (numba's start-up): timed apart, so
     # that the real-time factor below is the simulation's.
     load0 = time.perf_counter()

@@ -33,6 +33,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from sim.commands._common import integer, number, tcp_port
+
 HELP = "run the simulated bench in real time behind a pty (/dev/pts/N), TCP port or CAN bus"
 
 #: At most this many ticks are simulated in one pass of the loop.
@@ -50,7 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     default_bench = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true", help="serve on a new pseudo-terminal")
-    where.add_argument("--tcp", type=int, metavar="PORT", help="serve on TCP PORT (0: any)")
+    where.add_argument("--tcp", type=tcp_port, metavar="PORT", help="serve on TCP PORT (0: any)")
     where.add_argument("--can", metavar="IF/CHANNEL", help="gateway to CAN, e.g. socketcan/vcan0")
     parser.add_argument("--host", default="127.0.0.1", help="TCP address to bind (127.0.0.1)")
     parser.add_argument(
@@ -58,16 +60,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--speed",
-        type=float,
+        type=number(lo=0.0, lo_open=True, allow_inf=True),
         default=1.0,
         help="simulated seconds per wall second (1 = real time; 'inf' = as fast as possible)",
     )
     parser.add_argument(
-        "--duration", type=float, help="stop after this many simulated seconds (default: never)"
+        "--duration",
+        type=number(lo=0.0, hi=1e9),
+        help="stop after this many simulated seconds (default: never)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="noise and fault-injection seed")
     parser.add_argument(
-        "--baud", type=int, help="UART baud rate (default: the bench's [telemetry] baud)"
+        "--seed", type=integer(0, 2**63 - 1), default=0, help="noise and fault-injection seed"
+    )
+    parser.add_argument(
+        "--baud", type=integer(1), help="UART baud rate (default: the bench's [telemetry] baud)"
     )
     parser.add_argument(
         "--set",

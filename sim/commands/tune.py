@@ -10,6 +10,8 @@ import sys
 import time
 from pathlib import Path
 
+from sim.commands._common import integer, number, output_dir
+
 HELP = "tune the current, velocity and position loop gains offline (writes a tuned TOML)"
 
 
@@ -23,22 +25,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: fig8)",
     )
     parser.add_argument("--out", type=Path, default=Path("tune_out"), help="output directory")
-    parser.add_argument("--seed", type=int, default=0, help="optimiser and noise seed")
+    parser.add_argument(
+        "--seed", type=integer(0, 2**32 - 1), default=0, help="optimiser and noise seed"
+    )
     parser.add_argument(
         "--joint", action="store_true", help="tune all five gains at once (default: staged)"
     )
     parser.add_argument(
         "--time-scale",
-        type=float,
+        type=number(lo=1.0, hi=100.0),
         default=4.0,
         help="run the scenarios with times / K, velocities / K, accelerations kept "
-        "(default 4; 1 = as written)",
+        "(default 4; 1 = as written; 1 to 100)",
     )
-    parser.add_argument("--popsize", type=int, default=10, help="population per gain (scipy)")
-    parser.add_argument("--maxiter", type=int, default=4, help="generations per stage")
+    parser.add_argument(
+        "--popsize", type=integer(2, 1000), default=10, help="population per gain (scipy, >= 2)"
+    )
+    parser.add_argument(
+        "--maxiter", type=integer(0, 1000), default=4, help="generations per stage (>= 0)"
+    )
     parser.add_argument(
         "--bound-factor",
-        type=float,
+        type=number(lo=1.0, lo_open=True, hi=1e6),
         default=4.0,
         help="search each gain within [config / F, config * F] (default 4)",
     )
@@ -51,6 +59,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    # The folder is checked first (a bad --out fails in a moment, not after the tuning) and
+    # removed again if the command stops before writing anything.
+    with output_dir(args.out, ("*_tuned.toml", "*.png", "report.md")):
+        return _tune(args)
+
+
+def _tune(args: argparse.Namespace) -> int:
     from firmware_model.units import AXIS_DEG_PER_COUNT
     from serial_protocol.exceptions import CommandError
     from sim.config import load_bench
@@ -80,7 +95,6 @@ def main(args: argparse.Namespace) -> int:
     linear.check_gains(bench, start, str(args.config))
     names = args.scenario or [DEFAULT_SCENARIO]
     scenarios = [scenario(n, bench, time_scale=args.time_scale, tail_s=1.0) for n in names]
-    args.out.mkdir(parents=True, exist_ok=True)
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
 
     sets: dict[str, GainSet] = {"config": start}

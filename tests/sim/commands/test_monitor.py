@@ -129,9 +129,13 @@ def test_monitor_without_a_board_fails_cleanly():
     server.close()
 
 
-def test_bad_timeouts_are_command_errors():
-    with pytest.raises(CommandError, match="ack-timeout"):
-        run_monitor(["loop://", "--ack-timeout", "0"])
+def test_bad_timeouts_are_usage_errors(capsys):
+    from sim import cli
+
+    assert cli.main(["monitor", "loop://", "--ack-timeout", "0"]) == 2
+    assert "argument --ack-timeout: '0': must be > 0" in capsys.readouterr().err
+    assert cli.main(["monitor", "loop://", "--retries", "-1"]) == 2
+    assert "argument --retries: '-1': must be in 0 .. 100" in capsys.readouterr().err
 
 
 class RecordingClient:
