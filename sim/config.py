@@ -295,7 +295,12 @@ def build_tables(data: Mapping[str, Any], file: Any = None) -> dict[str, Any]:
     return tables
 
 
-def bench_from_tables(tables: Mapping[str, Any], file: Any = None) -> BenchConfig:
+def bench_from_tables(
+    tables: Mapping[str, Any], file: Any = None, *, errors_in: Any = None
+) -> BenchConfig:
+    """The ``BenchConfig`` of built tables (``build_tables``); ``file`` is its path, errors
+    name ``errors_in`` (default ``file``: an experiment's overrides name the experiment)."""
+    where = file if errors_in is None else errors_in
     plant_fields = {f.name for f in dataclasses.fields(sim_params.PlantParams)}
     plant = sim_params.PlantParams(**{k: v for k, v in tables.items() if k in plant_fields})
     try:
@@ -306,7 +311,7 @@ def bench_from_tables(tables: Mapping[str, Any], file: Any = None) -> BenchConfi
         table = next(
             (p for p, cls in fw_params.TABLES.items() if key in _field_types(cls)), "firmware"
         )
-        raise ConfigError(f"{_where(file, table)} {text}") from None
+        raise ConfigError(f"{_where(where, table)} {text}") from None
     bench = BenchConfig(
         plant=plant,
         firmware=firmware,
@@ -314,7 +319,7 @@ def bench_from_tables(tables: Mapping[str, Any], file: Any = None) -> BenchConfi
         loop=tables["loop"],
         path=Path(file) if file is not None else None,
     )
-    check_bench(bench, file)
+    check_bench(bench, where)
     return bench
 
 
@@ -514,7 +519,9 @@ def load_experiment(path: str | Path) -> Experiment:
     # the experiment file.
     bench = bench_from_tables(build_tables(base, bench_file), bench_file)
     if overrides:
-        bench = bench_from_tables(build_tables(_merge(base, overrides), file), bench_file)
+        bench = bench_from_tables(
+            build_tables(_merge(base, overrides), file), bench_file, errors_in=file
+        )
     entries = data.get("command", [])
     if not isinstance(entries, list):
         raise ConfigError(f"{file}: [top] command = {entries!r}: use [[command]] tables")

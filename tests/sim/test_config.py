@@ -69,7 +69,7 @@ PLANT_BAD = [
     ("gearbox", "ratio", "0.0", "> 0"),
     ("gearbox", "efficiency", "1.5", "(0, 1]"),
     ("gearbox", "backlash_deg", "-0.5", ">= 0"),
-    ("belt", "small_teeth", "4", "integer >= 8"),
+    ("belt", "small_teeth", "4", "integer in [8, 1000]"),
     ("belt", "large_teeth", "85.5", "must be an integer"),
     ("belt", "stiffness_nm_rad", "0.0", "> 0"),
     ("belt", "damping_nm_s_rad", "-2.0", ">= 0"),
@@ -85,7 +85,7 @@ PLANT_BAD = [
     ("uart", "fifo_bytes", "33", "integer in [34,"),
     ("uart", "bit_flip_rate", "1.5", "probability"),
     ("uart", "burst_rate", "0.9\ndrop_rate = 0.5", "add up"),
-    ("uart", "burst_bytes", "0", "integer >= 1"),
+    ("uart", "burst_bytes", "0", "integer in [1, 1048576]"),
     ("loop", "event_levels", "99", "integer in [0, 40]"),
 ]
 
@@ -280,3 +280,125 @@ def test_every_command_type_builds_its_message(tmp_path):
     assert len(built) == len(COMMAND_FIELDS)
     assert built[-1] == bytes.fromhex("a55a")
     assert {type(m).__name__ for m in built[:-1]} >= {"Hello", "Move", "Stop", "SetEnable"}
+
+
+# ---------------------------------------- issue #11 §5: each case a one-line ConfigError
+
+
+def _one_line(call, *parts: str) -> str:
+    text = _expect(call, *parts)
+    assert "\n" not in text
+    return text
+
+
+def test_a_list_in_a_gain_or_plant_field_is_refused(tmp_path):
+    text = BENCH.read_text()
+    f = _write(
+        tmp_path, "g.toml", re.sub(r"(?m)^kp_a_per_dps = .*$", "kp_a_per_dps = [0.01]", text)
+    )
+    _one_line(lambda: load_bench(f), "[controller.velocity]", "kp_a_per_dps = [0.01]", "not a list")
+    f = _write(tmp_path, "g2.toml", re.sub(r"(?m)^kp_per_s = .*$", "kp_per_s = [1.0, 2.0]", text))
+    _one_line(lambda: load_bench(f), "[controller.position]", "kp_per_s = [1.0, 2.0]")
+    f = _bench_with(tmp_path, "")
+    f.write_text(f.read_text().replace("r_ohm = 1.2", "r_ohm = [[1.2]]"))
+    _one_line(lambda: load_bench(f), "[motor]", "r_ohm = [[1.2]]", "not a list")
+
+
+def test_unreadable_files_are_config_errors(tmp_path):
+    latin1 = tmp_path / "latin1.toml"
+    latin1.write_bytes(b'title = "b\xe9nch"\n')
+    _one_line(lambda: load_bench(latin1), "latin1.toml", "not UTF-8", "0xe9", "offset 10")
+    _one_line(lambda: load_experiment(latin1), "latin1.toml", "not UTF-8")
+    _one_line(lambda: load_bench(tmp_path), str(tmp_path), "is a folder")
+    exp = _exp(tmp_path, f'bench = "{tmp_path}"\nduration_s = 1.0\n')
+    _one_line(lambda: load_experiment(exp), "bench =", "no such file")
+
+
+@pytest.mark.parametrize(
+    ("table", "key", "value", "reason"),
+    [
+        ("encoder", "bits", "12", "written for the AS5048's 14 bits"),
+        ("encoder", "bits", "16", "(bits = 14; firmware_model/units.py)"),
+        ("gearbox", "ratio", "100.0", "written for the 80:1 gearmotor"),
+        ("gearbox", "ratio", "79.9", "no other value is accepted"),
+    ],
+)
+def test_values_the_firmware_hard_codes_are_refused(tmp_path, table, key, value, reason):
+    f = _bench_with(tmp_path, "")
+    pattern = re.compile(rf"(^\[{table}\]\n(?:(?!^\[).*\n)*?){key} = [^\n]*\n", re.M)
+    f.write_text(pattern.sub(rf"\g<1>{key} = {value}\n", f.read_text(), count=1))
+    _one_line(lambda: load_bench(f), f"[{table}] {key} = {value}", reason)
+
+
+def test_hard_coded_values_are_refused_as_simulation_overrides_too():
+    from sim.loop import Simulation
+
+    bench = load_bench(BENCH)
+    with pytest.raises(ConfigError, match=r"\[gearbox\] ratio = \[80.0, 70.0\]"):
+        Simulation(bench, batch=2, overrides={"gearbox.ratio": [80.0, 70.0]})
+    with pytest.raises(ConfigError, match=r"overrides: \[encoder\] bits = 10"):
+        Simulation(bench, overrides={"encoder.bits": 10})
+    # a plant spread around the firmware's nominal values stays possible (robustness)
+    Simulation(bench, batch=2, overrides={"supply.voltage_v": [20.0, 26.0]})
+
+
+@pytest.mark.parametrize(
+    ("extra", "parts"),
+    [
+        ("[safety]\nwatchdog_s = 0.001\n", ["[safety] watchdog_s = 0.001", "one servo tick"]),
+        ("[safety]\nwatchdog_s = 0.002\n", ["watchdog_s = 0.002", "(0.002 s at servo.tick_hz"]),
+        (
+            "[safety]\nwatchdog_s = 0.004\n[servo]\ntick_hz = 200.0\n",
+            ["[safety] watchdog_s = 0.004", "0.005 s at servo.tick_hz = 200"],
+        ),
+        ("[uart]\nfifo_bytes = 33\n", ["[uart] fifo_bytes = 33", "(34 bytes, Telemetry)"]),
+        ("[uart]\nfifo_bytes = 16\n", ["[uart] fifo_bytes = 16", "largest frame"]),
+        ("[motor]\nr_ohm = 1e400\n", ["[motor] r_ohm = inf", "finite"]),
+        (
+            "[belt]\nsmall_teeth = 100000000000000000000\n",
+            ["[belt] small_teeth", "integer in [8, 1000]"],
+        ),
+    ],
+)
+def test_sizes_that_cannot_work_are_refused(tmp_path, extra, parts):
+    f = _exp(tmp_path, GOOD_HEAD + extra)
+    assert "exp.toml" in _one_line(lambda: load_experiment(f), *parts)
+
+
+def test_watchdog_off_or_longer_than_a_tick_is_accepted(tmp_path):
+    for value in ("0.0", "0.0021", "0.5"):
+        f = _exp(tmp_path, GOOD_HEAD + f"[safety]\nwatchdog_s = {value}\n")
+        assert load_experiment(f).bench.firmware.safety.watchdog_s == float(value)
+
+
+@pytest.mark.parametrize(
+    ("body", "parts"),
+    [
+        (
+            'type = "move"\ntarget_mdeg = 3e9\nv_max_dps = 990.0\na_max_dps2 = 148.0',
+            ["command #1", "target_mdeg = 3000000000.0", "Move.target_deg holds -214748.3649"],
+        ),
+        (
+            'type = "move"\ntarget_deg = 1.0\nv_max_dps = 1e39\na_max_dps2 = 148.0',
+            ["v_max_dps = 1e+39", "does not fit the wire"],
+        ),
+        (
+            'type = "set_gains"\nloop = "velocity"\nkp = 1e40\nki = 0.0',
+            ["kp = 1e+40", "SetGains.kp holds"],
+        ),
+        ('type = "set_telemetry"\ndecimation = 70000', ["decimation = 70000", "0 .. 65535"]),
+        ('type = "set_telemetry"\ndecimation = -1', ["decimation = -1", "0 .. 65535"]),
+        ('type = "stop"\na_max_dps2 = -1e39', ["a_max_dps2 = -1e+39", "Stop.a_max_dps2"]),
+    ],
+)
+def test_command_values_that_do_not_fit_the_wire(tmp_path, body, parts):
+    f = _exp(tmp_path, GOOD_HEAD, f"[[command]]\nt_s = 0.0\n{body}\n")
+    _one_line(lambda: load_experiment(f), "exp.toml", *parts)
+
+
+def test_cross_field_errors_name_the_wrong_key(tmp_path):
+    f = _exp(tmp_path, GOOD_HEAD + "[limits]\nv_max_dps = 2000.0\n")
+    _one_line(lambda: load_experiment(f), "[limits] v_max_dps = 2000.0", "safety.over_speed_dps")
+    f = _bench_with(tmp_path, "")
+    f.write_text(f.read_text().replace("voltage_v = 24.0", "voltage_v = 20.0"))
+    _one_line(lambda: load_bench(f), "[controller.current] supply_v = 24.0", "[supply] gives 20.0")
