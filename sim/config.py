@@ -242,6 +242,54 @@ def _coerce(value: Any, hint: Any) -> Any:
     return value
 
 
+#: Physical sanity ranges of the plant's keys in a file (or ``serve --set``): wide ranges
+#: around the bench's parts; outside them a number is a typo (a motor of 1000 ohm, a platter
+#: of 1e9 kg m^2), and the model is not made for it. The dataclasses themselves only refuse
+#: what cannot be computed (tests and studies may build extreme plants in code).
+SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
+    ("supply", "voltage_v"): (5.5, 27.8, "the BTN7971B's operating supply range"),
+    ("bridge", "r_on_path_ohm"): (0.0, 10.0, "a bridge path, not a resistor bank"),
+    ("bridge", "timer_clock_hz"): (1e6, 72e6, "the STM32F103's timer clock"),
+    ("bridge", "pwm_hz"): (100.0, 100e3, "a PWM the BTN7971B can switch"),
+    ("bridge", "current_limit_a"): (0.1, 200.0, "the chip's own current limitation"),
+    ("bridge", "diode_drop_v"): (0.0, 5.0, "a power diode's forward drop"),
+    ("current_sense", "k_ilis"): (100.0, 1e6, "a current-sense ratio"),
+    ("current_sense", "r_is_ohm"): (1.0, 1e6, "a sense resistor"),
+    ("current_sense", "adc_vref_v"): (0.5, 5.5, "an ADC reference"),
+    ("current_sense", "noise_rms_lsb"): (0.0, 1000.0, "ADC noise"),
+    ("motor", "r_ohm"): (1e-3, 1e3, "a DC motor's armature resistance"),
+    ("motor", "l_h"): (1e-6, 1.0, "a DC motor's armature inductance"),
+    ("motor", "kt_nm_a"): (1e-4, 10.0, "a DC motor's torque constant"),
+    ("motor", "ke_v_s_rad"): (1e-4, 10.0, "a DC motor's back-EMF constant"),
+    ("motor", "j_kgm2"): (1e-9, 1.0, "a DC motor's rotor inertia"),
+    ("motor", "viscous_nm_s_rad"): (0.0, 1.0, "a DC motor's viscous friction"),
+    ("motor", "coulomb_nm"): (0.0, 10.0, "a DC motor's dry friction"),
+    ("motor", "coulomb_band_rad_s"): (1e-6, 1e3, "a friction smoothing band"),
+    ("gearbox", "backlash_deg"): (0.0, 90.0, "a gearbox's backlash"),
+    ("belt", "small_teeth"): (8, 1000, "a timing pulley"),
+    ("belt", "large_teeth"): (8, 1000, "a timing pulley"),
+    ("belt", "stiffness_nm_rad"): (1.0, 1e9, "a timing belt's stiffness"),
+    ("belt", "damping_nm_s_rad"): (0.0, 1e6, "a timing belt's damping"),
+    ("platter", "j_kgm2"): (1e-6, 1e4, "a platter's inertia"),
+    ("platter", "coulomb_nm"): (0.0, 1e4, "a slewing bearing's friction"),
+    ("platter", "viscous_nm_s_rad"): (0.0, 1e4, "a slewing bearing's viscous friction"),
+    ("platter", "coulomb_band_rad_s"): (1e-9, 1e3, "a friction smoothing band"),
+    ("encoder", "noise_rms_lsb"): (0.0, 1000.0, "encoder noise"),
+}
+
+
+def sanity_problem(table: str, key: str, value: Any) -> str:
+    """Why ``value`` is outside the physical range of ``[table] key`` ('' if it is not, or
+    if the key has no such range)."""
+    span = SANITY.get((table, key))
+    if span is None or isinstance(value, bool) or not isinstance(value, int | float):
+        return ""
+    lo, hi, why = span
+    if lo <= value <= hi:
+        return ""
+    return f"must be in [{lo:g}, {hi:g}] ({why})"
+
+
 def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
     hints = _field_types(cls)
     known = {f.name for f in dataclasses.fields(cls)}
@@ -258,7 +306,7 @@ def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
             raise ConfigError(f"{_where(file, table)} {key} = {value!r}: {reason}")
         kwargs[key] = _coerce(value, hints.get(key))
     try:
-        return cls(**kwargs)
+        built = cls(**kwargs)
     except (ValueError, TypeError) as exc:
         text = str(exc)
         key = text.split(" = ", 1)[0] if " = " in text else "?"
@@ -266,6 +314,11 @@ def _build(cls: type, values: Mapping[str, Any], file: Any, table: str) -> Any:
         # "key = value: reason" from the dataclass: say the key and value once
         text = text.removeprefix(f"{key} = {kwargs.get(key)!r}: ")
         raise ConfigError(f"{_where(file, table)} {key} = {raw!r}: {text}") from None
+    for key, value in values.items():
+        reason = sanity_problem(table, key, value)
+        if reason:
+            raise ConfigError(f"{_where(file, table)} {key} = {value!r}: {reason}")
+    return built
 
 
 def _collect_table_paths(data: Mapping[str, Any], prefix: str = "") -> list[str]:
@@ -423,12 +476,12 @@ def _kind(value: Any, kind: str) -> Any:
         return value
     if kind == "profile":
         names = {p.name.lower(): p for p in msg.Profile}
-        if value not in names:
+        if not isinstance(value, str) or value not in names:
             raise ValueError(f"must be one of {sorted(names)}")
         return names[value]
     if kind == "loop":
         names = {p.name.lower(): p for p in msg.Loop}
-        if value not in names:
+        if not isinstance(value, str) or value not in names:
             raise ValueError(f"must be one of {sorted(names)}")
         return names[value]
     # hex

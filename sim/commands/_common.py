@@ -116,29 +116,27 @@ def output_dir(path: Path, outputs: tuple[str, ...], option: str = "--out") -> I
     before = _files(path, outputs) if path.is_dir() else {}
     subdirs = {path / pattern.split("/")[0] for pattern in outputs if "/" in pattern}
     new_subdirs = sorted(d for d in subdirs if not d.exists())
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise CommandError(
-            f"{option} {str(path)!r}: cannot create the folder: {exc.strerror}"
-        ) from None
     probe = path / ".turntable-sim-write-test"
     try:
-        probe.touch()
-        probe.unlink()
-    except OSError as exc:
-        _remove_empty(missing)
-        raise CommandError(f"{option} {str(path)!r}: cannot write there: {exc.strerror}") from None
-    try:
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+            probe.touch()
+            probe.unlink()
+        except OSError as exc:
+            what = "cannot create the folder" if not path.is_dir() else "cannot write there"
+            raise CommandError(f"{option} {str(path)!r}: {what}: {exc.strerror}") from None
         yield path
     except BaseException as exc:
+        # Ctrl-C or an error, wherever it came (also between the mkdir and the work)
+        with contextlib.suppress(OSError):
+            probe.unlink()
         written = sorted(p for p, t in _files(path, outputs).items() if before.get(p) != t)
         _remove_empty(new_subdirs + missing)
         if isinstance(exc, KeyboardInterrupt):
             if written:
                 names = ", ".join(str(p.relative_to(path)) for p in written)
                 print(f"kept in {path}: {names} (written before the interrupt)", file=sys.stderr)
-            elif not path.exists():
+            elif missing and not path.exists():
                 print(f"nothing was written; removed the empty folder {path}", file=sys.stderr)
             else:
                 print(f"nothing was written to {path}", file=sys.stderr)

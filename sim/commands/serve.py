@@ -236,6 +236,7 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
     import tomllib
 
     from serial_protocol.exceptions import CommandError
+    from sim.config import sanity_problem
 
     out: dict[str, Any] = {}
     for item in args.set:
@@ -243,9 +244,16 @@ def _overrides(args: argparse.Namespace) -> dict[str, Any]:
         if not sep or "." not in key:
             raise CommandError(f"--set {item!r}: expected TABLE.KEY=VALUE")
         try:
-            out[key.strip()] = tomllib.loads(f"v = {text.strip()}")["v"]
+            value = tomllib.loads(f"v = {text.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             raise CommandError(f"--set {item!r}: {text!r} is not a TOML value") from None
+        table, _, name = key.strip().rpartition(".")
+        if isinstance(value, list | dict):
+            raise CommandError(f"--set {item!r}: must be a single value")
+        reason = sanity_problem(table, name, value)
+        if reason:
+            raise CommandError(f"--set {item!r}: {reason}")
+        out[key.strip()] = value
     if args.baud is not None:
         out["telemetry.baud"] = args.baud
     return out

@@ -69,7 +69,7 @@ PLANT_BAD = [
     ("gearbox", "ratio", "0.0", "> 0"),
     ("gearbox", "efficiency", "1.5", "(0, 1]"),
     ("gearbox", "backlash_deg", "-0.5", ">= 0"),
-    ("belt", "small_teeth", "4", "integer in [8, 1000]"),
+    ("belt", "small_teeth", "4", "integer >= 8"),
     ("belt", "large_teeth", "85.5", "must be an integer"),
     ("belt", "stiffness_nm_rad", "0.0", "> 0"),
     ("belt", "damping_nm_s_rad", "-2.0", ">= 0"),
@@ -356,7 +356,7 @@ def test_hard_coded_values_are_refused_as_simulation_overrides_too():
         ("[motor]\nr_ohm = 1e400\n", ["[motor] r_ohm = inf", "finite"]),
         (
             "[belt]\nsmall_teeth = 100000000000000000000\n",
-            ["[belt] small_teeth", "integer in [8, 1000]"],
+            ["[belt] small_teeth", "must be in [8, 1000] (a timing pulley)"],
         ),
     ],
 )
