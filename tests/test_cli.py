@@ -152,7 +152,10 @@ BAD_ARGUMENTS = [
     (["monitor", "loop://", "--move", "nan"], "must be a finite number"),
     (["monitor", "loop://", "--telemetry", "-1"], "SetTelemetry.decimation holds 0 .. 65535"),
     (["monitor", "loop://", "--gains", "velocity", "1e40", "0", "0"], "kp = 1e+40: does not fit"),
-    (["monitor", "loop://", "--gains", "speed", "1", "0", "0"], "loop must be current"),
+    (
+        ["monitor", "loop://", "--gains", "speed", "1", "0", "0"],
+        "must be current, velocity or position",
+    ),
     (["monitor", "loop://", "--limits", "1", "1", "inf", "1"], "must be a finite number"),
     (["monitor", "loop://", "--interrupt", "-2", "5"], "AFTER_S must be >= 0"),
     (["monitor", "loop://", "--baud", "0"], "--baud: '0': must be in 1 .. 100000000"),
