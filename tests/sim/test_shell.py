@@ -235,7 +235,8 @@ def test_values_the_wire_cannot_carry_are_not_sent(board):
     shell = MonitorShell(client, say=said.append)
     before = link.frames_out
     shell.execute("move 1e30")
-    assert said[-1].startswith("not sent: ")
+    # refused when parsed, with the wire field's range (sim.wire), before anything is sent
+    assert said[-1].startswith("error: 'move 1e30': target_deg = 1e+30: does not fit the wire")
     assert link.frames_out == before
 
 
