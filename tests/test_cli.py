@@ -136,7 +136,7 @@ def test_shell_completion_of_commands_options_and_files(tmp_path):
     (tmp_path / "my_bench.toml").write_text("")
     (tmp_path / "notes.txt").write_text("")
     assert set(_complete("turntable-sim ", tmp_path)) >= set(cli.COMMANDS)
-    assert _complete("turntable-sim rep", tmp_path) == ["reproduce "]
+    assert _complete("turntable-sim repr", tmp_path) == ["reproduce "]
     assert "--tick-hz" in _complete("turntable-sim decode --ti", tmp_path)[0]
     files = _complete("turntable-sim tune my", tmp_path)
     assert files == ["my_bench.toml "]
