@@ -67,4 +67,4 @@ def test_the_check_sees_a_module_that_switches(tmp_path):
     done = subprocess.run(
         [sys.executable, "-c", CHECK, "switcher"], env=env, capture_output=True, text=True
     )
-    assert "CHANGED ['switcher.plots -> agg']" in done.stdout.lower(), done.stdout + done.stderr
+    assert "changed ['switcher.plots -> agg']" in done.stdout.lower(), done.stdout + done.stderr
