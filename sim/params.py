@@ -30,6 +30,7 @@ __all__ = [
     "SupplyParams",
     "TABLES",
     "UartParams",
+    "largest_board_frame",
     "per_member",
 ]
 
@@ -247,7 +248,7 @@ class EncoderParams:
         return 1 << self.bits
 
 
-def _largest_board_frame() -> tuple[int, str]:
+def largest_board_frame() -> tuple[int, str]:
     """Bytes and name of the longest frame the board sends (from the codec)."""
     from serial_protocol import frame, messages
 
@@ -273,7 +274,7 @@ class UartParams:
     burst_bytes: int = 4
 
     def __post_init__(self) -> None:
-        largest, name = _largest_board_frame()
+        largest, name = largest_board_frame()
         _check(
             self,
             "fifo_bytes",

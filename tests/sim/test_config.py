@@ -14,6 +14,7 @@ from sim import params as sim_params
 from sim.config import load_bench, load_experiment
 
 BENCH = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
+LARGEST_FRAME, LARGEST_NAME = sim_params.largest_board_frame()
 
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:
@@ -81,8 +82,8 @@ PLANT_BAD = [
     ("encoder", "latency_s", "0.5", "< 0.01"),
     ("encoder", "noise_rms_lsb", "-1.0", ">= 0"),
     ("encoder", "offset_counts", "-3.0", ">= 0"),
-    ("uart", "fifo_bytes", "8", "largest frame the board sends (34 bytes"),
-    ("uart", "fifo_bytes", "33", "integer in [34,"),
+    ("uart", "fifo_bytes", "8", "largest frame the board sends ("),
+    ("uart", "fifo_bytes", str(LARGEST_FRAME - 1), f"integer in [{LARGEST_FRAME},"),
     ("uart", "bit_flip_rate", "1.5", "probability"),
     ("uart", "burst_rate", "0.9\ndrop_rate = 0.5", "add up"),
     ("uart", "burst_bytes", "0", "integer in [1, 1048576]"),
@@ -351,7 +352,10 @@ def test_hard_coded_values_are_refused_as_simulation_overrides_too():
             "[safety]\nwatchdog_s = 0.004\n[servo]\ntick_hz = 200.0\n",
             ["[safety] watchdog_s = 0.004", "0.005 s at servo.tick_hz = 200"],
         ),
-        ("[uart]\nfifo_bytes = 33\n", ["[uart] fifo_bytes = 33", "(34 bytes, Telemetry)"]),
+        (
+            f"[uart]\nfifo_bytes = {LARGEST_FRAME - 1}\n",
+            [f"fifo_bytes = {LARGEST_FRAME - 1}", f"({LARGEST_FRAME} bytes, {LARGEST_NAME})"],
+        ),
         ("[uart]\nfifo_bytes = 16\n", ["[uart] fifo_bytes = 16", "largest frame"]),
         ("[motor]\nr_ohm = 1e400\n", ["[motor] r_ohm = inf", "finite"]),
         (
