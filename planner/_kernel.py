@@ -1,11 +1,11 @@
-"""The planners' arithmetic, compiled: one implementation of each law, used by the trapezoid,
-the velocity pulses of the S-curve and the S-curve's search (numba, ``cache=True``, no
-``fastmath``).
+"""The planners' arithmetic: one implementation of each law, used by the trapezoid, the
+velocity pulses of the S-curve and the S-curve's search (compiled with numba, ``cache=True``,
+no ``fastmath``).
 
-Phases are written into ``out``, an array of shape ``(2, MAX_PHASES)``: ``out[0, i]`` the
-duration of phase ``i``, ``out[1, i]`` its value (an acceleration for the trapezoid, a jerk
-for the S-curve). A phase of zero duration may be written; :func:`planner.profile.
-build_profile` drops it.
+Inside the search, phases are written into ``out``, an array of shape ``(2, MAX_PHASES)``:
+``out[0, i]`` the duration of phase ``i``, ``out[1, i]`` its value (an acceleration for the
+trapezoid, a jerk for the S-curve). A phase of zero duration may be written;
+:func:`planner.profile.build_profile` drops it.
 
 Everything here is unit-free and pure: arguments in, phases out, no clock, no I/O.
 :func:`segments` and :func:`integrate` are plain Python that numba can compile: the
@@ -31,6 +31,13 @@ _GRID_PEAK = 32  # family A: peak velocities on [-v_max, v_max]
 _GRID_TAU = 16  # family B: durations of the first jerk phase
 _GRID_TAU1 = 8  # family C: durations of the first of two jerk phases
 _GRID_TAU2 = 8  # family C: roots over the second one
+
+# The search's state, one float64 array (numba passes it by reference): the filter's
+# bounds, then the best candidate, the fallback of the least peak speed (a candidate that
+# ends right but fails the filter) and that of the least residual (none ends right: only at
+# the edge of floating point). Their phases live in slots 0, 1 and 2 of ``best``.
+_V_ALLOWED, _V_LIM, _T_BRAKE, _BEST_DUR, _BEST_N, _LOW_PEAK, _LOW_N, _NEAR_ERR, _NEAR_N = range(9)
+_N_STATE = 9
 
 
 def segments(x0, x1, v0, v1, v_max, a_acc, a_dec):
@@ -486,14 +493,6 @@ def _roots(fam, s, tau1, xs, d, v0, a0, vf, v_max, a_acc, a_dec, j_max, best, ca
                         a_acc, a_dec, j_max, cand)  # fmt: skip
             _consider(fam, x, s, tau1, d, v0, a0, vf, v_max, a_acc, a_dec, j_max,
                       best, cand, lim)  # fmt: skip
-
-
-# The search's state, one float64 array (numba passes it by reference): the filter's
-# bounds, then the best candidate, the fallback of the least peak speed (a candidate that
-# ends right but fails the filter) and that of the least residual (none ends right: only at
-# the edge of floating point). Their phases live in slots 0, 1 and 2 of ``best``.
-_V_ALLOWED, _V_LIM, _T_BRAKE, _BEST_DUR, _BEST_N, _LOW_PEAK, _LOW_N, _NEAR_ERR, _NEAR_N = range(9)
-_N_STATE = 9
 
 
 @numba.njit(cache=True)

@@ -13,7 +13,7 @@ trapezoid's), switching to the trapezoid sets its own (a trapezoid has no jerk l
 
 The object holds only the active profile and its start time. A sample is O(number of
 phases) and allocates no arrays; a trapezoid replan costs ~8 us, an S-curve replan from any
-state a compiled search (median ~15 us, worst ~70 us: ``benchmarks/bench_planner.py``), both
+state a compiled search (median ~15 us, worst under 80 us: ``benchmarks/bench_planner.py``), both
 well inside a 2 ms tick. An S-curve planner loads the compiled kernel when it is created
 (0.3-0.9 s once per process, see :func:`planner.warm_up`), not in the middle of a move.
 """

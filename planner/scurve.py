@@ -38,9 +38,10 @@ reproduce the paper's Table 2. Here the same shape is planned time-optimally for
   reverses the direction keeps the smaller limit throughout, because the acceleration is
   continuous through v = 0 where both apply (valid; not time-optimal for such pulses: the
   time-optimal pulse would change its plateau at v = 0).
-* Cost: a plan is one call of the compiled search, median ~15 us and at most ~70 us on the
-  2-core development machine (``benchmarks/bench_planner.py``), inside a 2 ms tick. The
-  kernel loads from numba's cache once per process (:func:`planner.warm_up`).
+* Cost: a plan is one call of the compiled search, median ~15 us and at most 47-78 us
+  across runs on the loaded 2-core development machine (``benchmarks/bench_planner.py``),
+  inside a 2 ms tick. The kernel loads from numba's cache once per process
+  (:func:`planner.warm_up`).
 
 """
 
