@@ -43,6 +43,8 @@ DRAIN_ON_ACCEPT_BYTES = 64 << 20
 #: The kernel's send buffer of a TCP client (it doubles the value): a client that stops
 #: reading sees at most this much stale output queued in the kernel.
 TCP_SNDBUF_BYTES = 8192
+#: Set on every client's socket (benchmarks/bench_link.py turns it off to measure Nagle).
+TCP_NODELAY = True
 #: What a second TCP client receives before the server closes its connection.
 BUSY_MESSAGE = (
     "turntable-sim serve: busy: this port serves one client at a time and {peer} is "
@@ -238,7 +240,7 @@ class TcpEndpoint(_ByteEndpoint):
                 self._drain(DRAIN_ON_ACCEPT_BYTES)
             if self._client is None:
                 conn.setblocking(False)
-                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, int(TCP_NODELAY))
                 conn.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TCP_SNDBUF_BYTES)
                 self._client, self._peer = conn, peer
                 self._counters["clients"] += 1
