@@ -50,7 +50,18 @@ def open_serial(url: str, baud: int = 115200, timeout_s: float = 0.0) -> serial.
     Raises ``LinkError`` naming the URL when the port cannot be opened.
     """
     try:
-        return serial.serial_for_url(url, baudrate=baud, timeout=timeout_s)
+        if not url.startswith("socket://"):
+            return serial.serial_for_url(url, baudrate=baud, timeout=timeout_s)
+        # pyserial's socket:// open() ends with reset_input_buffer(), which would swallow
+        # what a server says at once (serve's one-line refusal of a second client):
+        # skipped for the open; SerialLink.open drains the input itself.
+        port = serial.serial_for_url(url, baudrate=baud, timeout=timeout_s, do_not_open=True)
+        port.reset_input_buffer = lambda: None  # type: ignore[method-assign]
+        try:
+            port.open()
+        finally:
+            del port.reset_input_buffer
+        return port
     except (serial.SerialException, ValueError, OSError) as exc:
         raise LinkError(f"cannot open serial port {url!r} at {baud} baud: {exc}") from exc
 
