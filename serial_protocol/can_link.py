@@ -21,13 +21,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from typing import Any
-from zlib import crc32
 
 import can
 from can.util import channel2int
 
 from serial_protocol.exceptions import LinkError
-from serial_protocol.frame import MAX_PAYLOAD_BYTES, decode_payload, encode_payload
+from serial_protocol.frame import MAX_PAYLOAD_BYTES, crc32, decode_payload, encode_payload
 from serial_protocol.messages import Malformed, Message
 
 __all__ = [
