@@ -1,20 +1,26 @@
-"""Speed of the simulation loop (not a test; the numbers go to docs/benchmarks.md, "Simulation").
+"""Speed of the simulation (not a test; the numbers go to docs/benchmarks.md, "Simulation").
 
-Three measurements, all with the full firmware model (``firmware_model.firmware.Firmware``)
-on ``bench_configs/paper_bench.toml``, driven by the paper's Fig. 8 script (3000 deg, then
-interrupts to -8000, -6000 and -1000 deg at 2, 10 and 16 s; v_max 990 deg/s, a_max 148
-deg/s^2), encoder noise on, telemetry every tick:
+Paired against a reference tree (``--ref``, e.g. a checkout of the commit before issue 12),
+each measurement alternating between the two trees in fresh interpreters, round after
+round, so that both see the same machine load; the table gives the medians over the rounds
+and the median of the per-round ratios. All runs use the full firmware model on
+``bench_configs/paper_bench.toml`` driven by the paper's Fig. 8 script (``fig8.toml``, cut
+to the simulated time given), encoder noise on, telemetry framed every tick and decoded by
+the simulated PC (``RunResult.telemetry_arrays``):
 
-1. real-time factor of one 20 s run (``sim.loop.run``), N = 1;
-2. batch throughput at N = 256 (controller ticks per second = N x ticks / wall time);
-3. the same closed loop with the plant advanced by one ``solve_ivp`` call per tick (what a
-   user would write by hand), at equal accuracy (rtol 1e-10; the motor angles of the two
-   runs are compared and printed), against the exact-ZOH loop, in the same run.
+1. one 20 s run, N = 1 (real-time factor; median of 5 in a process, after one warm-up run);
+2. batch N = 256, 2 s (member-ticks per second; median of 3), float and fixed-point law;
+3. a fresh process: import, loading the compiled kernels, first run (this tree only);
+4. whole commands as a user runs them: ``tune bench_configs/paper_bench.toml`` and
+   ``reproduce`` (wall time of the process, median of ``--cmd-repeat``);
+5. a one-hour simulated ``serve``-style run (``keep_log=False``, stepped in chunks, the PC
+   reading every chunk): resident memory along the way;
+6. the closed loop with the plant advanced by one ``solve_ivp`` call per tick, against the
+   exact-ZOH plant (accuracy and cost of the model, tick by tick).
 
-Repeats give a median and a minimum (the machine is shared: the minimum is the closest to an
-idle machine). Usage::
+Usage::
 
-    python3 benchmarks/bench_sim.py [--repeat 3] [--batch 256] [--batch-s 2] [--ivp-s 1]
+    python3 benchmarks/bench_sim.py --ref /tmp/ref_tree [--rounds 3] [--skip-commands]
 """
 
 from __future__ import annotations
@@ -22,9 +28,11 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -32,7 +40,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from sim.config import Experiment, ScriptedCommand, load_bench
-from sim.loop import Simulation, run
+from sim.loop import Simulation
 from sim.plant import derivative
 
 BENCH = Path(__file__).resolve().parents[1] / "bench_configs" / "paper_bench.toml"
@@ -79,125 +87,6 @@ class SolveIvpPlant:
         return sol.y[:, -1].reshape(1, 5)
 
 
-def time_run(exp: Experiment, batch: int | None, repeat: int) -> list[float]:
-    walls = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        res = run(exp, batch=batch)
-        walls.append(time.perf_counter() - t0)
-        # What the PC decodes is part of the experiment: decode it into the columns the
-        # figures are drawn from, as sim.reproduce does (lazy in RunResult).
-        t1 = time.perf_counter()
-        n_tel = len(res.telemetry_arrays()["tick"])
-        walls[-1] += time.perf_counter() - t1
-    assert n_tel > 0
-    return walls
-
-
-def cold_process(duration_s: float) -> dict[str, float]:
-    """One run in a fresh interpreter, as the CLI does it: wall s of importing the
-    simulator, of loading the compiled kernels (numba's start-up) and of the run (with the
-    first use of every mode's matrices) plus the PC decode."""
-    code = f"""
-import json, sys, time
-t0 = time.perf_counter()
-sys.path.insert(0, {str(Path(__file__).resolve().parent)!r})
-from bench_sim import fig8_experiment
-from sim import plant_kernel
-from sim.loop import run
-t1 = time.perf_counter()
-plant_kernel.warm_up()
-t2 = time.perf_counter()
-res = run(fig8_experiment({duration_s!r}))
-res.telemetry_arrays()
-t3 = time.perf_counter()
-print(json.dumps({{"import_s": t1 - t0, "kernels_s": t2 - t1, "run_s": t3 - t2}}))
-"""
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    return json.loads(out.stdout.splitlines()[-1])
-
-
-def quietest_chunks(
-    exp: Experiment, chunk: int = 100, batch: int | None = None
-) -> tuple[float, float]:
-    """Step the experiment in chunks of ``chunk`` ticks: (quietest, median) us/tick.
-    On a shared machine the quietest chunk is the closest to the code's own cost."""
-    from serial_protocol import frame
-
-    sim = Simulation(exp.bench, seed=0, batch=batch)
-    sim.reserve(round(exp.duration_s / exp.bench.dt_s))
-    n = round(exp.duration_s / exp.bench.dt_s)
-    at = {round(c.t_s / exp.bench.dt_s): c for c in exp.commands}
-    per = []
-    seq = 0
-    for start in range(0, n, chunk):
-        for k in range(start, start + chunk):
-            if k in at:
-                sim.pc_write(frame.encode(at[k].message(seq + 1), seq))
-                seq += 1
-        t0 = time.perf_counter()
-        sim.step(chunk)
-        per.append((time.perf_counter() - t0) / chunk * 1e6)
-    return min(per), statistics.median(per)
-
-
-def time_split(exp: Experiment, chunk: int, batch: int | None = None) -> dict[str, float]:
-    """Where a tick's time goes: the firmware's calls (``servo_tick``, ``current_tick``,
-    ``signals``), the plant's ``update``, and the rest of the loop (encoder, ADC, duty
-    rounding, log rows, UART), in us per tick: medians over the quietest quarter of the
-    ``chunk``-tick chunks. Each timed call carries ~0.1-0.3 us of timer overhead."""
-    from serial_protocol import frame
-
-    sim = Simulation(exp.bench, seed=0, batch=batch)
-    n = round(exp.duration_s / exp.bench.dt_s)
-    sim.reserve(n)
-    spent = {"firmware": 0.0, "plant": 0.0}
-
-    def timed(obj: object, name: str, part: str) -> None:
-        call = getattr(obj, name)
-
-        def wrapper(*args):
-            t0 = time.perf_counter()
-            out = call(*args)
-            spent[part] += time.perf_counter() - t0
-            return out
-
-        setattr(obj, name, wrapper)
-
-    for name in ("servo_tick", "current_tick", "signals"):
-        timed(sim.fw, name, "firmware")
-    timed(sim.plant, "update", "plant")
-    at = {round(c.t_s / exp.bench.dt_s): c for c in exp.commands}
-    rows = []
-    seq = 0
-    for start in range(0, n, chunk):
-        for k in range(start, start + chunk):
-            if k in at:
-                sim.pc_write(frame.encode(at[k].message(seq + 1), seq))
-                seq += 1
-        before = dict(spent)
-        t0 = time.perf_counter()
-        sim.step(chunk)
-        wall = time.perf_counter() - t0
-        rows.append((wall, {part: spent[part] - before[part] for part in spent}))
-    rows.sort(key=lambda r: r[0])
-    quiet = rows[: max(1, len(rows) // 4)]
-    out = {"tick": statistics.median(r[0] for r in quiet) / chunk * 1e6}
-    for part in spent:
-        out[part] = statistics.median(r[1][part] for r in quiet) / chunk * 1e6
-    out["rest"] = out["tick"] - out["firmware"] - out["plant"]
-    return out
-
-
-def print_split(split: dict[str, float]) -> None:
-    tick = split["tick"]
-    parts = ", ".join(
-        f"{part} {split[part]:.1f} us ({100 * split[part] / tick:.0f} %)"
-        for part in ("firmware", "plant", "rest")
-    )
-    print(f"    where a tick goes (quietest quarter of chunks, timed): {tick:.1f} us = {parts}")
-
-
 def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
     """Same closed loop, ZOH plant vs solve_ivp plant, same seed: wall per tick and the
     largest motor-angle difference."""
@@ -205,7 +94,8 @@ def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
     out = {}
     logs = {}
     for name in ("zoh", "ivp"):
-        sim = Simulation(exp.bench, seed=0)
+        # record_inputs: the tick-by-tick path, where the plant object can be swapped.
+        sim = Simulation(exp.bench, seed=0, record_inputs=True)
         if name == "ivp":
             sim.plant = SolveIvpPlant(exp.bench.plant, sim.h_s)
         from serial_protocol import frame
@@ -257,74 +147,197 @@ def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
     return res
 
 
+_MEASURE = r"""
+import dataclasses, json, statistics, sys, time, warnings
+warnings.simplefilter("ignore")
+sys.path.insert(0, {tree!r})
+from pathlib import Path
+from sim.config import load_experiment
+from sim.loop import run
+fig8 = load_experiment(Path({tree!r}) / "bench_configs" / "fig8.toml")
+def timed(exp, batch=None, overrides=None, repeat=3):
+    walls = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        res = run(exp, batch=batch, overrides=overrides)
+        res.telemetry_arrays()
+        walls.append(time.perf_counter() - t0)
+    return statistics.median(walls)
+one = dataclasses.replace(fig8, duration_s=20.0)
+short = dataclasses.replace(fig8, duration_s={batch_s!r})
+run(dataclasses.replace(fig8, duration_s=0.1))  # load the kernels
+run(dataclasses.replace(fig8, duration_s=0.1), batch=2)
+run(dataclasses.replace(fig8, duration_s=0.1), batch=2, overrides={{"servo.arithmetic": "fixed"}})
+out = {{"n1_s": timed(one, repeat=5)}}
+out["float_s"] = timed(short, batch={batch!r})
+out["fixed_s"] = timed(short, batch={batch!r}, overrides={{"servo.arithmetic": "fixed"}})
+print(json.dumps(out))
+"""
+
+_FRESH = r"""
+import json, sys, time, warnings
+warnings.simplefilter("ignore")
+t0 = time.perf_counter()
+sys.path.insert(0, {tree!r})
+from pathlib import Path
+from sim.config import load_experiment
+from sim.loop import run, warm_up
+t1 = time.perf_counter()
+exp = load_experiment(Path({tree!r}) / "bench_configs" / "fig8.toml")
+warm_up(exp.bench)
+t2 = time.perf_counter()
+run(exp).telemetry_arrays()
+t3 = time.perf_counter()
+print(json.dumps({{"import_s": t1 - t0, "kernels_s": t2 - t1, "run_s": t3 - t2}}))
+"""
+
+
+def _python(code: str) -> dict[str, float]:
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _load() -> str:
+    return "load average " + " ".join(f"{v:.1f}" for v in os.getloadavg())
+
+
+def paired(trees: dict[str, str], rounds: int, batch: int, batch_s: float) -> None:
+    """Measurements 1 and 2, alternating between the trees round after round."""
+    results: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
+    for r in range(rounds):
+        for name, tree in trees.items():
+            results[name].append(_python(_MEASURE.format(tree=tree, batch=batch, batch_s=batch_s)))
+        print(f"    round {r + 1}/{rounds} done ({_load()})", flush=True)
+    ticks = batch * round(batch_s / 0.002)
+
+    def row(m: dict[str, float]) -> tuple[float, float, float, float]:
+        return (
+            20.0 / m["n1_s"],
+            ticks / m["float_s"],
+            ticks / m["fixed_s"],
+            m["fixed_s"] / m["float_s"],
+        )
+
+    print(
+        f"| tree | 20 s run N = 1 (x real time) | N = {batch} float (member-ticks/s) | "
+        f"N = {batch} fixed (member-ticks/s) | fixed / float time |"
+    )
+    print("|---|---:|---:|---:|---:|")
+    for name in trees:
+        rows = [row(m) for m in results[name]]
+        med = [statistics.median(c) for c in zip(*rows, strict=True)]
+        print(f"| {name} | {med[0]:,.0f} | {med[1]:,.0f} | {med[2]:,.0f} | {med[3]:.2f} |")
+    if len(trees) == 2:
+        (a, ra), (b, rb) = results.items()
+        ratios = [
+            [nb / na for na, nb in zip(row(x), row(y), strict=True)][:3]
+            for x, y in zip(ra, rb, strict=True)
+        ]
+        med = [statistics.median(c) for c in zip(*ratios, strict=True)]
+        print(
+            f"| {b} / {a} (median of per-round ratios) | {med[0]:.2f}x | {med[1]:.2f}x | "
+            f"{med[2]:.2f}x | |"
+        )
+
+
+def fresh_process(tree: str, repeat: int) -> None:
+    runs = [_python(_FRESH.format(tree=tree)) for _ in range(repeat)]
+    med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+    print(
+        f"    fresh process (median of {repeat}): import {med['import_s']:.2f} s, loading the "
+        f"compiled kernels {med['kernels_s']:.2f} s, first 30 s Fig. 8 run + decode "
+        f"{med['run_s']:.3f} s ({30 / med['run_s']:.0f}x real time) ({_load()})"
+    )
+
+
+def commands(trees: dict[str, str], repeat: int) -> None:
+    """Whole commands, wall time of the process, alternating between the trees."""
+    cmds = {
+        "tune": ["tune", "bench_configs/paper_bench.toml"],
+        "reproduce": ["reproduce"],
+    }
+    for label, argv in cmds.items():
+        walls: dict[str, list[float]] = {name: [] for name in trees}
+        for _ in range(repeat):
+            for name, tree in trees.items():
+                with tempfile.TemporaryDirectory() as tmp:
+                    extra = ["--out", tmp]
+                    env = dict(os.environ, PYTHONPATH=tree, MPLBACKEND="Agg")
+                    t0 = time.perf_counter()
+                    subprocess.run(
+                        [sys.executable, "-m", "sim.cli", *argv, *extra], cwd=tree, env=env,
+                        check=True, capture_output=True,
+                    )  # fmt: skip
+                    walls[name].append(time.perf_counter() - t0)
+        text = ", ".join(f"{n} {statistics.median(w):.1f} s" for n, w in walls.items())
+        print(f"    {label} (whole command, median of {repeat}): {text} ({_load()})")
+
+
+def serve_hour(hours: float, chunk: int) -> None:
+    """A serve-style run (no per-tick log, the PC reading every chunk): RSS as it goes."""
+    import resource
+
+    from sim.config import load_bench
+    from sim.loop import Simulation
+
+    def rss_mb() -> float:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+    sim = Simulation(load_bench(BENCH), keep_log=False)
+    n = round(hours * 3600 / sim.dt_s)
+    marks = []
+    t0 = time.perf_counter()
+    received = 0
+    while sim.tick < n:
+        sim.step(min(chunk, n - sim.tick))
+        received += len(sim.pc_read())
+        if sim.tick % (n // 6) < chunk:
+            marks.append((sim.tick * sim.dt_s / 60, rss_mb()))
+    wall = time.perf_counter() - t0
+    text = ", ".join(f"{m:.0f} min {r:.1f} MB" for m, r in marks)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3
+    print(
+        f"    {hours:g} h simulated in {wall:.1f} s ({hours * 3600 / wall:.0f}x real time), "
+        f"{received / 1e6:.1f} MB to the PC; RSS: {text}; peak {peak:.1f} MB ({_load()})"
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--ref", help="a reference tree (e.g. a checkout of the previous commit)")
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--batch", type=int, default=256)
     ap.add_argument("--batch-s", type=float, default=2.0, help="simulated s of the batch run")
+    ap.add_argument("--cmd-repeat", type=int, default=3)
+    ap.add_argument("--skip-commands", action="store_true")
+    ap.add_argument("--serve-hours", type=float, default=1.0)
     ap.add_argument("--ivp-s", type=float, default=1.0, help="simulated s of the ivp loop")
     args = ap.parse_args()
-
+    here = str(Path(__file__).resolve().parents[1])
+    trees = {"reference": args.ref, "this tree": here} if args.ref else {"this tree": here}
+    print(f"[1, 2] paired runs, {args.rounds} rounds ({_load()} at the start)")
+    paired(trees, args.rounds, args.batch, args.batch_s)
+    print("[3]")
+    fresh_process(here, 3)
+    if not args.skip_commands:
+        print("[4]")
+        commands(trees, args.cmd_repeat)
+    print("[5]")
+    serve_hour(args.serve_hours, 5000)
     exp20 = fig8_experiment(20.0)
-    walls = time_run(exp20, None, args.repeat)
-    med, best = statistics.median(walls), min(walls)
-    print(f"[1] 20 s run, N = 1, full firmware: wall median {med:.3f} s (min {best:.3f} s)")
-    print(f"    real-time factor median {20 / med:.0f}x (best {20 / best:.0f}x), target 200x;")
-    print(f"    {med / 10_000 * 1e6:.1f} us per tick median ({best / 10_000 * 1e6:.1f} best)")
-
-    cold = [cold_process(20.0) for _ in range(3)]
-    med = {k: statistics.median(c[k] for c in cold) for k in cold[0]}
-    print(
-        f"    in a fresh process (median of 3): import {med['import_s']:.2f} s, compiled kernels "
-        f"{med['kernels_s']:.2f} s, first run + decode {med['run_s']:.3f} s "
-        f"({20 / med['run_s']:.0f}x real time)"
-    )
-
-    q, m = quietest_chunks(exp20)
-    print(
-        f"    stepped in chunks of 100 ticks (no PC decode): quietest chunk {q:.1f} us/tick "
-        f"({1e6 / q / 500:.0f}x real time), median chunk {m:.1f} us/tick"
-    )
-
-    print_split(time_split(exp20, 100))
-
-    expb = fig8_experiment(args.batch_s)
-    walls = time_run(expb, args.batch, args.repeat)
-    ticks = args.batch * round(args.batch_s / expb.bench.dt_s)
-    med, best = statistics.median(walls), min(walls)
-    print(
-        f"[2] batch N = {args.batch}, {args.batch_s:g} s: wall median {med:.3f} s (min {best:.3f})"
-    )
-    print(
-        f"    {ticks / med:,.0f} controller ticks/s median ({ticks / best:,.0f} best), "
-        "target 2,000,000"
-    )
-
-    q, m = quietest_chunks(expb, chunk=20, batch=args.batch)
-    print(
-        f"    stepped in chunks of 20 ticks: quietest chunk {args.batch / q * 1e6:,.0f} "
-        f"ticks/s, median chunk {args.batch / m * 1e6:,.0f} ticks/s"
-    )
-
-    print_split(time_split(expb, 20, batch=args.batch))
-
     r = loop_ivp_vs_zoh(exp20, args.ivp_s)
-    print(f"[3] closed loop, {args.ivp_s:g} s, same seed: ZOH {r['zoh_us_per_tick']:.1f} us/tick,")
+    print(f"[6] closed loop, {args.ivp_s:g} s, same seed: ZOH {r['zoh_us_per_tick']:.1f} us/tick,")
     print(f"    solve_ivp per tick (DOP853, rtol 1e-10) {r['ivp_us_per_tick']:.1f} us/tick")
     print(
-        f"    ratio {r['ratio']:.0f}x overall, {r['ratio_median']:.0f}x median 50-tick chunk, "
-        f"{r['ratio_quietest']:.0f}x quietest chunks (target 50x); closed-loop motor-angle "
-        f"difference {r['max_diff_rev']:.2e} rev"
+        f"    ratio {r['ratio']:.0f}x overall, {r['ratio_median']:.0f}x median 50-tick chunk; "
+        f"closed-loop motor-angle difference {r['max_diff_rev']:.2e} rev"
     )
     p = plant_only(exp20, args.ivp_s)
     print(
         f"    plant alone (replayed duty): ZOH {p['plant_zoh_us_per_step']:.2f} us/step, "
         f"solve_ivp {p['plant_ivp_us_per_step']:.0f} us/step, ratio {p['plant_ratio']:.0f}x, "
         f"max motor-angle difference {p['plant_diff_rev']:.2e} rev"
-    )
-    print(
-        "    (the closed loops drift apart once a tiny difference flips an encoder count;"
-        " the replay compares the two integrators on identical inputs)"
     )
 
 

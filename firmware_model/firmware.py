@@ -29,10 +29,10 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-import numba
 import numpy as np
 
 from firmware_model import safety
+from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import P_DUTY, P_IMEAS, P_IREF, P_POS, P_VEL, P_VEL_RAW
 from firmware_model.params import FirmwareParams
@@ -113,6 +113,7 @@ COMMAND_MASK = sum(1 << int(cls.MSG_TYPE) for cls in COMMAND_TYPES)
 _COMMAND_CLASSES = frozenset(COMMAND_TYPES)
 # A refusal: (code, refused field name or None, limit in the field's unit).
 _Refusal = tuple[NackCode, str | None, float]
+_MODES = {"hold": ftick.MODE_HOLD, "plan": ftick.MODE_PLAN, "step": ftick.MODE_STEP}
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
     int(State.IDLE),
@@ -247,6 +248,22 @@ class Firmware:
             if fault is not Fault.NONE:
                 self._counts[f"fault_{fault.name}"] = 0
         self._set_decimation(tel.decimation)
+        # The shared state in the arrays of the compiled tick (firmware_model/tick.py):
+        # the constants once here, the rest by _pack / _unpack around each compiled call.
+        self._fs = np.zeros(ftick.N_FS)
+        self._fi = np.zeros(ftick.N_FI, dtype=np.int64)
+        s = params.safety
+        fs, fi = self._fs, self._fi
+        fs[ftick.FS_DT], fs[ftick.FS_TOL] = self.dt_s, params.limits.in_position_deg
+        fs[ftick.FS_OC_THR], fs[ftick.FS_OVER_SPEED] = s.over_current_a, s.over_speed_dps
+        fs[ftick.FS_STUCK_MIN_VEL] = s.encoder_stuck_min_vel_dps
+        fi[ftick.FI_WATCHDOG], fi[ftick.FI_OC_SAMPLES] = self._watchdog_ticks, s.over_current_ticks
+        fi[ftick.FI_JUMP], fi[ftick.FI_STUCK] = s.encoder_jump_counts, s.encoder_stuck_ticks
+        lim = params.limits
+        fs[ftick.FS_TRAVEL_MIN], fs[ftick.FS_TRAVEL_MAX] = lim.travel_min_deg, lim.travel_max_deg
+        fs[ftick.FS_EDGE_DECEL] = lim.a_max_dps2
+        self._prof = np.zeros((0, 5))
+        self._prof_of: Any = None  # the (profile, start time) packed into _prof
 
     # ------------------------------------------------------------------ public API
     def servo_tick(self, encoder_counts: Any, rx_bytes: bytes, tx_free: int) -> bytes:
@@ -274,23 +291,12 @@ class Firmware:
             self._receive(rx_bytes)
         elif self.decoder._buf and self.tick - self._last_byte_tick >= self._silence_ticks:
             self._silence()
-        t_s = self.tick * self.dt_s
-        mode = self._mode
-        v_clamp = self._v_clamp_dps
-        if mode == "plan":
-            planner = self._planners[self._kind]
-            p, v, a = planner.sample(t_s)
-            self._moving = planner.moving
-        elif mode == "step":
-            p, v, a = self._target_deg, 0.0, 0.0
-            if self._moving:
-                self._moving = not self._in_position()
-            v_clamp = min(v_clamp, self._step_edge_speed_dps())
-        else:
-            p, v, a = self.sp_pos_deg, 0.0, 0.0
-        self.sp_pos_deg, self.sp_vel_dps, self.sp_acc_dps2 = p, v, a
-        if self._enabled_s or (not self._scalar and self._enabled.any()):
-            law.servo(p, v, a, v_clamp, self.current_limit_a)
+        self._pack()
+        hit = ftick.servo_stage(
+            law.P, law.C, law.S, law.G, law.K, self._fs, self._fi, self._enabled, self._prof
+        )
+        self._unpack()
+        if hit:
             self._check()
         self.tick += 1
         return self._transmit(tx_free)
@@ -312,35 +318,24 @@ class Firmware:
         else:
             adc = np.asarray(adc_counts, dtype=np.int64)
         enabled = self._enabled.copy()
-        duty = law.current(adc, enabled)
-        i_meas = law.current_meas_a
-        if self._scalar:
-            if self._enabled_s:
-                if abs(i_meas[0]) > self._oc_thr_a:
-                    self._oc_s += 1
-                    if self._oc_s >= self._oc_samples:
-                        self._trip(np.array([True]), Fault.OVER_CURRENT, i_meas[0],
-                                   self._oc_thr_a)  # fmt: skip
-                        return 0.0, False
-                else:
-                    self._oc_s = 0
-            return float(duty[0]), self._enabled_s
-        duty = duty.copy()  # the caller may keep it; the law's view changes next period
-        abs_i = np.abs(i_meas)
-        if abs_i.max() <= self._oc_thr_a:  # the common case: one reduction
-            if self._oc_s:
-                self._oc_ticks[:] = 0
-                self._oc_s = 0
-            return duty, enabled
-        over = enabled & (abs_i > self._oc_thr_a)
-        self._oc_ticks = np.where(over, self._oc_ticks + 1, 0)
-        self._oc_s = 1
-        trip = self._oc_ticks >= self._oc_samples
-        if trip.any():
-            self._trip(trip, Fault.OVER_CURRENT, i_meas, self._oc_thr_a)
-            duty = law.duty.copy()
+        fi = self._fi
+        fi[ftick.FI_OC_ANY] = self._oc_s
+        trip = ftick.current_stage(
+            adc, enabled, law.P, law.C, law.S, law.G, law.K, self._fs, fi, self._oc_ticks
+        )
+        self._oc_s = int(fi[ftick.FI_OC_ANY])
+        if trip:
+            self._trip(
+                self._oc_ticks >= self._oc_samples,
+                Fault.OVER_CURRENT,
+                law.current_meas_a.copy(),
+                self._oc_thr_a,
+            )
             enabled = self._enabled.copy()
-        return duty, enabled
+        if self._scalar:
+            return float(law.duty[0]), bool(enabled[0])
+        # Copies: the caller may keep them; the law's arrays change next period.
+        return law.duty.copy(), enabled
 
     def signals(self) -> dict[str, Any]:
         """The firmware's view of this tick (floats, or ``(N,)`` arrays in batch).
@@ -410,6 +405,67 @@ class Firmware:
         out["telemetry_decimation"] = self._decimation
         return out
 
+    # ------------------------------------------------------------------ compiled state
+    def _pack(self) -> None:
+        """The attributes the compiled tick reads and writes, into ``_fs`` / ``_fi``."""
+        fs, fi = self._fs, self._fi
+        fs[ftick.FS_SP_POS] = self.sp_pos_deg
+        fs[ftick.FS_SP_VEL] = self.sp_vel_dps
+        fs[ftick.FS_SP_ACC] = self.sp_acc_dps2
+        fs[ftick.FS_TARGET] = self._target_deg
+        fs[ftick.FS_V_CLAMP] = self._v_clamp_dps
+        fs[ftick.FS_I_LIMIT] = self.current_limit_a
+        fs[ftick.FS_FOLLOWING] = self.following_error_deg
+        fs[ftick.FS_POS_LO], fs[ftick.FS_POS_HI] = self._pos_lo_deg, self._pos_hi_deg
+        fs[ftick.FS_OC_THR] = self._oc_thr_a
+        fi[ftick.FI_TICK] = self.tick
+        fi[ftick.FI_HEARTBEAT] = self._heartbeat_ticks
+        mode = self._mode
+        fi[ftick.FI_MODE] = _MODES[mode]
+        fi[ftick.FI_MOVING] = self._moving
+        fi[ftick.FI_MOVED] = self._moved
+        fi[ftick.FI_SEQ] = self._seq
+        fi[ftick.FI_DECIMATION] = self._decimation
+        fi[ftick.FI_LAST_RX] = self._last_rx_tick
+        fi[ftick.FI_OC_ANY] = self._oc_s
+        fi[ftick.FI_TX_FRAMES] = self._tx_frames
+        fi[ftick.FI_TX_BYTES] = self._tx_bytes
+        fi[ftick.FI_TX_DROPPED] = self._tx_dropped
+        if mode == "plan":
+            planner = self._planners[self._kind]
+            profile, t_start_s = planner.profile, planner.t_start_s
+            if (
+                self._prof_of is None
+                or self._prof_of[0] is not profile
+                or (self._prof_of[1] != t_start_s)
+            ):
+                self._pack_profile(profile, t_start_s)
+
+    def _pack_profile(self, profile: Any, t_start_s: float) -> None:
+        """The planner's active profile (``planner.profile.Profile``; the firmware plans
+        before it enters ``plan`` mode, so there is one) as the compiled tick's arrays."""
+        fs = self._fs
+        self._prof_of = (profile, t_start_s)
+        rows = (profile.t0, profile.p, profile.v, profile.a, profile.j)
+        self._prof = np.array(rows, dtype=float).T.reshape(-1, 5).copy()
+        fs[ftick.FS_PROF_T0], fs[ftick.FS_PROF_DURATION] = t_start_s, profile.duration
+        fs[ftick.FS_PROF_P0], fs[ftick.FS_PROF_V0] = profile.p0, profile.v0
+        fs[ftick.FS_PROF_P1], fs[ftick.FS_PROF_V1] = profile.p1, profile.v1
+
+    def _unpack(self) -> None:
+        """What the compiled tick changed, back into the attributes."""
+        fs, fi = self._fs, self._fi
+        self.sp_pos_deg = float(fs[ftick.FS_SP_POS])
+        self.sp_vel_dps = float(fs[ftick.FS_SP_VEL])
+        self.sp_acc_dps2 = float(fs[ftick.FS_SP_ACC])
+        self.tick = int(fi[ftick.FI_TICK])
+        self._moving = bool(fi[ftick.FI_MOVING])
+        self._seq = int(fi[ftick.FI_SEQ])
+        self._oc_s = int(fi[ftick.FI_OC_ANY])
+        self._tx_frames = int(fi[ftick.FI_TX_FRAMES])
+        self._tx_bytes = int(fi[ftick.FI_TX_BYTES])
+        self._tx_dropped = int(fi[ftick.FI_TX_DROPPED])
+
     # ------------------------------------------------------------------ boot and state
     def _boot(self, encoder_counts: Any) -> None:
         self.law.reset(encoder_counts)
@@ -458,18 +514,6 @@ class Firmware:
         self.sp_vel_dps = self.sp_acc_dps2 = 0.0
         self._v_clamp_dps = self.v_max_dps
 
-    def _step_edge_speed_dps(self) -> float:
-        """The speed a STEP move may have here and still brake at ``[limits] a_max_dps2``
-        before the travel end it heads for (``safety.edge_speed_dps``; the outermost member
-        in batch)."""
-        lim = self.params.limits
-        pos = self.law.pos_deg
-        up = self._target_deg >= float(pos[0])
-        pos = float(pos.max()) if up else float(pos.min())
-        return safety.edge_speed_dps(
-            pos, self._target_deg, lim.travel_min_deg, lim.travel_max_deg, lim.a_max_dps2
-        )
-
     def _planner_from_axis(self, kind: str, t_s: float) -> OnlinePlanner:
         """A planner whose commanded state at ``t_s`` is the measured state of the axis
         (member 0): a planned move that takes over from a STEP move (no planner, the axis
@@ -497,15 +541,7 @@ class Firmware:
         watchdog = bool(self._watchdog_ticks) and (
             self.tick - self._last_rx_tick > self._watchdog_ticks
         )
-        # Cheap screen first (one compiled pass); the per-member masks only on a hit.
-        if not watchdog and not _any_trip(
-            law.innovation_counts, law.stuck_ticks, law.vel_ref_dps, law.vel_dps, law.pos_deg,
-            float(self.sp_pos_deg), s.encoder_jump_counts, s.encoder_stuck_ticks,
-            float(s.encoder_stuck_min_vel_dps), float(s.over_speed_dps),
-            float(self.following_error_deg) if following else math.inf,
-            self._pos_lo_deg, self._pos_hi_deg,
-        ):  # fmt: skip
-            return
+        # firmware_model.tick.servo_stage screened the members: here the masks and trips.
         innov = np.abs(law.innovation_counts)
         stuck = law.stuck_ticks
         vel = law.vel_dps
@@ -1001,27 +1037,6 @@ class Firmware:
             self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
             state, fault, int(self._flags[0]) if fault else 0,
         )  # fmt: skip
-
-
-@numba.njit(cache=True)
-def _any_trip(
-    innovation_counts, stuck_ticks, vel_ref_dps, vel_dps, pos_deg, sp_pos_deg,
-    jump_counts, stuck_limit_ticks, stuck_min_vel_dps, over_speed_dps, following_error_deg,
-    pos_lo_deg, pos_hi_deg,
-):  # fmt: skip
-    """Whether any member meets an encoder, over-speed, position-limit or following-error
-    trip condition of ``Firmware._check_array`` (``following_error_deg`` inf: not
-    checked)."""
-    for j in range(pos_deg.shape[0]):
-        if (
-            abs(innovation_counts[j]) > jump_counts
-            or (stuck_ticks[j] >= stuck_limit_ticks and abs(vel_ref_dps[j]) > stuck_min_vel_dps)
-            or abs(vel_dps[j]) > over_speed_dps
-            or not pos_lo_deg <= pos_deg[j] <= pos_hi_deg
-            or abs(sp_pos_deg - pos_deg[j]) > following_error_deg
-        ):
-            return True
-    return False
 
 
 def _check_ranges(checks: list[tuple[str, float, float, float]]) -> _Refusal | None:

@@ -24,6 +24,7 @@ __all__ = [
     "FaultInjection",
     "UartStats",
     "bytes_per_s",
+    "pace",
     "link_utilisation",
     "telemetry_decimation",
 ]
@@ -143,6 +144,25 @@ class FaultEvent:
     kind: str  # "flip" | "drop" | "insert" | "burst"
 
 
+def pace(credit: float, dt_s: float, bytes_per_s: float, pending: int) -> tuple[int, float]:
+    """How many of ``pending`` queued bytes a line shifts out in ``dt_s``, and the credit
+    (line time in bytes) it banks: ``(n, credit)``. Plain arithmetic, so that a compiled
+    caller (``sim/tick.py``) paces exactly as ``EmulatedUart.advance``."""
+    credit = credit + dt_s * bytes_per_s
+    # The line empties the FIFO (what a fast line does every tick): the snapping below
+    # could not change that, and round(x, 9) costs more than the rest of this call.
+    if credit >= pending + 1.0:
+        return pending, 0.0
+    # snapped to 1e-9 byte so that float error cannot accumulate over millions of ticks
+    # (23.04 bytes per 2 ms at 115200 baud must give exactly 23040 bytes per second)
+    credit = round(credit, 9)
+    n = int(credit)
+    if n >= pending:
+        # the line goes idle: the next byte starts when it is written, no banked credit
+        return pending, 0.0
+    return n, credit - n
+
+
 class EmulatedUart:
     """One direction of an 8N1 serial line with a TX FIFO, paced in simulated time.
 
@@ -235,32 +255,32 @@ class EmulatedUart:
         if not dt_s >= 0.0:
             raise ValueError(f"dt_s = {dt_s!r}: must be >= 0")
         fifo = self._fifo
-        credit = self._credit + dt_s * self._bytes_per_s
-        # The line empties the FIFO (what a fast line does every tick): the snapping below
-        # could not change that, and round(x, 9) costs more than the rest of this call.
-        if credit >= len(fifo) + 1.0:
-            n = len(fifo)
-            self._credit = 0.0
-            if n == 0:
-                return b""
-            chunk = bytes(fifo)
-            fifo.clear()
-            return self._deliver(chunk, n)
-        # snapped to 1e-9 byte so that float error cannot accumulate over millions of ticks
-        # (23.04 bytes per 2 ms at 115200 baud must give exactly 23040 bytes per second)
-        credit = round(credit, 9)
-        n = int(credit)
-        if n >= len(fifo):
-            # the line goes idle: the next byte starts when it is written, no banked credit
-            n = len(fifo)
-            self._credit = 0.0
-        else:
-            self._credit = credit - n
+        n, self._credit = pace(self._credit, dt_s, self._bytes_per_s, len(fifo))
         if n == 0:
             return b""
         chunk = bytes(fifo[:n])
         del fifo[:n]
         return self._deliver(chunk, n)
+
+    @property
+    def credit(self) -> float:
+        """Bytes' worth of line time banked towards the next byte (< 1 while busy)."""
+        return self._credit
+
+    def transfer(self, data: bytes, shifted: int, credit: float) -> bytes:
+        """Catch up with a caller that paced this line itself (``pace``, e.g. the compiled
+        simulation loop): ``data`` was written (whole frames that fitted, so no overflow),
+        ``shifted`` bytes in all were shifted out (counting from the bytes queued before),
+        ``credit`` is left. Returns what reaches the far end, after fault injection (which
+        goes byte by byte, so one call for many ticks injects what per-tick calls would)."""
+        self._fifo += data
+        self.stats.written += len(data)
+        self._credit = credit
+        if not shifted:
+            return b""
+        chunk = bytes(self._fifo[:shifted])
+        del self._fifo[:shifted]
+        return self._deliver(chunk, shifted)
 
     def _deliver(self, chunk: bytes, n: int) -> bytes:
         """Count the ``n`` bytes of ``chunk`` shifted out, inject faults, return them."""

@@ -17,11 +17,16 @@ from __future__ import annotations
 
 from typing import Any
 
+import numba
 import numpy as np
 
 from sim.params import BridgeParams, CurrentSenseParams
 
-__all__ = ["adc_counts", "quantise_duty", "sensed_current_a"]
+__all__ = [
+    "adc_counts", "apply_bridge", "quantise_duty", "read_adc", "sensed_current_a",
+]  # fmt: skip
+
+I_A = 0  # the current in a plant state (sim.plant)
 
 
 def quantise_duty(duty: Any, bridge: BridgeParams) -> Any:
@@ -38,5 +43,46 @@ def sensed_current_a(current_a: Any, duty: Any, enable: Any) -> Any:
 def adc_counts(sensed_a: Any, sense: CurrentSenseParams, noise_lsb: Any = 0.0) -> Any:
     """12-bit ADC reading of the IS voltage ``sensed_a / k_ILIS * R_IS`` (int, clipped)."""
     full = (1 << sense.adc_bits) - 1
-    counts = np.floor(sensed_a / sense.a_per_lsb + noise_lsb + 0.5)
+    counts = np.floor(sensed_a / sense.a_per_lsb + 0.5 + noise_lsb)
     return np.clip(counts, 0, full).astype(np.int64)
+
+
+@numba.njit(cache=True)
+def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out):
+    """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
+    current in the direction of ``sense_sign``, the high side only) through
+    ``sim.bridge.adc_counts`` (rounded to nearest, plus noise, clamped to the ADC range).
+    ``draw``: one standard normal per member, or nothing for a noiseless ADC."""
+    noisy = draw.shape[0] > 0
+    for j in range(x.shape[0]):
+        v = sense_sign[j] * x[j, I_A]
+        c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
+        c = c / a_per_lsb[j] + 0.5
+        if noisy:
+            c = c + noise_lsb[j] * draw[j]
+        c = np.floor(c)
+        if c > adc_full:
+            c = adc_full
+        if c < 0.0:
+            c = 0.0
+        out[j] = np.int64(c)
+
+
+@numba.njit(cache=True)
+def apply_bridge(duty, enable, arr, supply_v, d_out, en_out, sense_sign, volt):
+    """The bridge per member: the duty clamped to [-1, 1] on the timer's ``1/arr`` steps
+    (``sim.bridge.quantise_duty``, half to even), the enable, the IS pin's sign of the
+    next period and the average output voltage (0 while disabled)."""
+    for j in range(d_out.shape[0]):
+        v = duty[j]
+        if v < -1.0:
+            v = -1.0
+        if v > 1.0:
+            v = 1.0
+        v = np.rint(v * arr[j]) / arr[j]
+        e = bool(enable[j])
+        d_out[j] = v
+        en_out[j] = e
+        sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (0.0 if v == 0.0 else v))
+        sense_sign[j] = sign if e else 0.0
+        volt[j] = v * supply_v[j] if e else 0.0

@@ -11,6 +11,7 @@ count and wrapped to ``[0, 2**bits)``. The noise comes from a seeded
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -35,29 +36,44 @@ class Encoder:
         self._noisy = bool(np.any(params.noise_rms_lsb))
         self._n = 0
         self._params: tuple[np.ndarray, ...] = ()
-        self._block = np.empty((0, 0))
-        self._row = 0
+        self.block = np.empty((0, 0))
+        self.row = 0
 
-    def read(self, x: np.ndarray) -> np.ndarray:
-        """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``."""
-        n = x.shape[0]
+    @property
+    def noisy(self) -> bool:
+        return self._noisy
+
+    def kernel_params(self, n: int) -> tuple[Any, ...]:
+        """``(latency_s, offset_counts, noise_lsb)`` as ``(n,)`` arrays, then counts per rad
+        and per revolution: the arguments of the compiled reading after the state."""
         if self._n != n:
             p = self.params
             self._n = n
             self._params = tuple(
                 per_member(v, n) for v in (p.latency_s, p.offset_counts, p.noise_rms_lsb)
             )
+        return (*self._params, self._counts_per_rad, self.counts_per_rev)
+
+    def refill(self, n: int) -> None:
+        """Draw the next block of standard normals (a numpy call per read would cost more
+        than the read); ``block`` and ``row`` are the compiled loop's too."""
+        self.block = self.rng.standard_normal((_BLOCK, n))
+        self.row = 0
+
+    def read(self, x: np.ndarray) -> np.ndarray:
+        """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``."""
+        n = x.shape[0]
+        params = self.kernel_params(n)
         if self._noisy:
-            if self._row == self._block.shape[0]:
-                # Drawn in blocks (a numpy call per read would cost more than the read).
-                self._block = self.rng.standard_normal((_BLOCK, n))
-                self._row = 0
-            draw = self._block[self._row]
-            self._row += 1
+            if self.row == self.block.shape[0]:
+                self.refill(n)
+            draw = self.block[self.row]
+            self.row += 1
         else:
             draw = _NO_DRAW
         counts = np.empty(n, dtype=np.int64)
-        _read(x, *self._params, draw, self._counts_per_rad, self.counts_per_rev, counts)
+        latency, offset, noise, counts_per_rad, counts_per_rev = params
+        _read(x, latency, offset, noise, draw, counts_per_rad, counts_per_rev, counts)
         return counts
 
 

@@ -25,25 +25,32 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+import sys
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any
 
-import numba
 import numpy as np
 
+from firmware_model import tick as ftick
 from firmware_model.firmware import SIGNAL_NAMES
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
-from serial_protocol.messages import Hello, Telemetry
-from serial_protocol.uart import EmulatedUart, FaultInjection
+from serial_protocol.messages import Fault, Hello, Telemetry
+from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
+from sim import tick as st
+from sim.bridge import apply_bridge, read_adc
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
 
-__all__ = ["LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run"]
+__all__ = [
+    "LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run", "warm_up",
+]  # fmt: skip
 
 # Every logged signal, in CSV column order after t_s (README, "CSV columns"): the firmware's
 # signals, then the plant's.
@@ -281,6 +288,9 @@ class Simulation:
         self.encoder = Encoder(plant.encoder, self._rng)
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
         self._adc_noisy = bool(np.any(plant.current_sense.noise_rms_lsb))
+        # ADC noise: standard normals drawn in blocks of 4096 periods x N, as the encoder's.
+        self._adc_block = np.empty((0, n))
+        self._adc_row = 0
         self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
         self._n_total = plant.total_ratio
         self.plant = Plant(plant, n, self.h_s, bench.loop.event_levels)
@@ -324,6 +334,12 @@ class Simulation:
                 return pick(signals())
 
         self._signal_row = signal_row
+        # The project's firmware runs in the compiled tick (sim/tick.py); another firmware
+        # object, or a run that records every plant input, steps tick by tick here.
+        from firmware_model.firmware import Firmware
+
+        self._compiled = type(firmware) is Firmware and not record_inputs
+        self._x_spare = np.zeros((n, 5))
 
     # ---------------------------------------------------------------- public API
     @property
@@ -370,6 +386,9 @@ class Simulation:
 
     def step(self, n_ticks: int = 1) -> None:
         """Advance ``n_ticks`` servo ticks."""
+        if self._compiled:
+            self._run_compiled(n_ticks)
+            return
         for _ in range(n_ticks):
             self._step()
 
@@ -443,6 +462,156 @@ class Simulation:
         if self._keep_log and self.tick + n_ticks > self._cap:
             self._grow(self.tick + n_ticks)
 
+    def _adc_draw(self) -> np.ndarray:
+        """The next row of ADC noise draws."""
+        if self._adc_row == self._adc_block.shape[0]:
+            self._adc_block = self._rng.standard_normal((4096, self.n))
+            self._adc_row = 0
+        row = self._adc_block[self._adc_row]
+        self._adc_row += 1
+        return row
+
+    def _run_compiled(self, n_ticks: int) -> None:
+        """``n_ticks`` ticks in the compiled tick (``sim.tick.run_ticks``), handling its
+        events here (see ``sim/tick.py``)."""
+        fw = self.fw
+        if n_ticks < 0:
+            return
+        if not fw._booted and n_ticks:  # the boot (the first reading): the firmware's Python
+            self._step()
+            n_ticks -= 1
+        k_end = self.tick + n_ticks
+        n = self.n
+        keep = self._keep_log
+        if keep and k_end > self._cap:
+            self._grow(k_end)
+        law, plant, enc = fw.law, self.plant, self.encoder
+        ctx = np.zeros(st.N_CX, dtype=np.int64)
+        ctx[st.CX_K] = self.tick
+        ctx[st.CX_STAGE] = st.TOP
+        ctx[st.CX_ENC_ROW] = enc.row
+        ctx[st.CX_ADC_ROW] = self._adc_row
+        x = self._x
+        ctx[st.CX_KNOWN] = x is plant._last_x
+        spare = self._x_spare if self._x_spare is not x else np.zeros((n, 5))
+        uart_tx = self.uart_tx
+        ctx[st.CX_PENDING] = uart_tx.pending
+        credit = np.array([uart_tx.credit])
+        flags = np.zeros(st.N_F, dtype=np.int64)
+        flags[st.F_FRAMER] = ftick.framer_ok()
+        flags[st.F_KEEP] = keep
+        flags[st.F_FIFO] = uart_tx.fifo_bytes
+        flags[st.F_FRAME_BYTES] = frame.TELEMETRY_FRAME_BYTES
+        flags[st.F_ENC_NOISY] = enc.noisy
+        flags[st.F_ADC_NOISY] = self._adc_noisy
+        txbuf = np.empty((n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
+        en_now = np.zeros(n, dtype=bool)
+        counts, adc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+        duty, enable = np.zeros(n), np.zeros(n, dtype=bool)
+        if keep:
+            arrays = self._arrays
+            logs = (self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"])
+        else:
+            empty = np.empty((0, n))
+            ints = np.empty((0, n), dtype=np.int64)
+            logs = (
+                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty,
+            )  # fmt: skip
+        bridge_params = (self._arr_n, self._vs_n)
+        adc_params = (self._a_per_lsb_n, self._adc_noise_n)
+        bps = float(bytes_per_s(uart_tx.baud))
+        x0, x1 = (x, spare)
+        while True:
+            fw._pack()
+            flags[st.F_REPLIES] = len(fw._replies) > 0
+            flags[st.F_RX_PRESENT] = len(self._rx_for_board) > 0
+            flags[st.F_RX_ACTIVE] = bool(self._pc_out) or self.uart_rx.pending > 0
+            # The silence rule: a partial frame is given up RX_SILENCE_S after its last byte.
+            flags[st.F_SILENCE_AT] = (
+                fw._last_byte_tick + fw._silence_ticks if fw.decoder._buf else -1
+            )
+            sim = (
+                x0, x1, self.dt_s, self.multiple, enc.kernel_params(n), enc.block, adc_params,
+                self._adc_block, self._adc_full, bridge_params, self._sense_sign, self._volt,
+                duty, enable, counts, adc, bps,
+            )  # fmt: skip
+            plant_args = (
+                plant._last_mech, plant._group, plant._slots, plant._phis, plant._rates,
+                plant._consts, plant.event_levels, plant.split_budget,
+            )  # fmt: skip
+            fw_args = (
+                fw._fs, fw._fi, fw._enabled, fw._fault, fw._oc_ticks, fw._prof, en_now,
+                fw._flags,
+            )  # fmt: skip
+            args = (
+                k_end, ctx, credit, flags, (law.P, law.C, law.S, law.G, law.K), fw_args, sim,
+                plant_args, logs, txbuf, ftick.TABLES,
+            )  # fmt: skip
+            if law.fixed in _LOADED:
+                code = st.run_ticks(*args)
+            else:
+                with compile_notice():
+                    code = st.run_ticks(*args)
+                _LOADED.add(law.fixed)
+            # Catch up: the firmware's attributes, the TX line, the clock and the state.
+            fw._unpack()
+            txlen, shifted = int(ctx[st.CX_TXLEN]), int(ctx[st.CX_SHIFTED])
+            if txlen or shifted:
+                self._pc_in += uart_tx.transfer(bytes(txbuf[:txlen]), shifted, float(credit[0]))
+                ctx[st.CX_TXLEN] = ctx[st.CX_SHIFTED] = 0
+            ctx[st.CX_PENDING] = uart_tx.pending
+            self.tick = int(ctx[st.CX_K])
+            enc.row = int(ctx[st.CX_ENC_ROW])
+            self._adc_row = int(ctx[st.CX_ADC_ROW])
+            plant.n_events += int(ctx[st.CX_EVENTS])
+            ctx[st.CX_EVENTS] = 0
+            if ctx[st.CX_FLIP]:
+                x0, x1 = x1, x0
+                ctx[st.CX_FLIP] = 0
+            self._x = x0
+            if code == st.STOP_END:
+                break
+            if code == st.STOP_RX:  # as Firmware.servo_tick does
+                rx = self._rx_for_board
+                self._rx_for_board = b""
+                if rx:
+                    fw._receive(rx)
+                else:
+                    fw._silence()
+            elif code == st.STOP_TRIP:
+                fw._check()
+            elif code == st.STOP_TRANSMIT:
+                data = fw._transmit(uart_tx.free)
+                if data:
+                    uart_tx.write(data)
+                ctx[st.CX_PENDING] = uart_tx.pending
+            elif code == st.STOP_OC:
+                fw._trip(
+                    fw._oc_ticks >= fw._oc_samples, Fault.OVER_CURRENT,
+                    law.current_meas_a.copy(), fw._oc_thr_a,
+                )  # fmt: skip
+                en_now[:] = fw._enabled
+            elif code == st.STOP_MODE:
+                plant._load(int(ctx[st.CX_NEED_GROUP]), int(ctx[st.CX_NEED_MODE]))
+            elif code == st.STOP_NOISE:
+                if ctx[st.CX_STAGE] == st.TOP:
+                    enc.refill(n)
+                    ctx[st.CX_ENC_ROW] = 0
+                else:
+                    self._adc_block = self._rng.standard_normal((4096, n))
+                    self._adc_row = 0
+                    ctx[st.CX_ADC_ROW] = 0
+            elif code == st.STOP_UART:
+                # The PC -> board direction of _move_bytes (the TX line moved in run_ticks).
+                rx = self.uart_rx
+                if self._pc_out:
+                    del self._pc_out[: rx.write(bytes(self._pc_out[: rx.free]))]
+                self._rx_for_board = rx.advance(self.dt_s) if rx.pending else b""
+        self._x = x0
+        self._x_spare = x1
+        plant._last_x = x0 if ctx[st.CX_KNOWN] else plant._last_x
+        self._duty, self._enable = duty.copy(), enable.copy()
+
     def _step(self) -> None:
         """One servo tick (the module docstring's order)."""
         fw = self.fw
@@ -465,9 +634,9 @@ class Simulation:
         for _ in range(self.multiple):
             # sim.bridge.sensed_current_a and adc_counts, with the duty's sign kept from
             # the last period.
-            draw = self._rng.standard_normal(n) if self._adc_noisy else _NO_DRAW
+            draw = self._adc_draw() if self._adc_noisy else _NO_DRAW
             adc = np.empty(n, dtype=np.int64)
-            _adc_counts(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
+            read_adc(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
                         self._adc_full, adc)  # fmt: skip
             if scalar:  # the one-axis API: floats in and out
                 duty_in, enable_in = self._one_duty, self._one_enable
@@ -482,7 +651,7 @@ class Simulation:
             # New arrays (the firmware may reuse its own), the duty on the timer's steps
             # (sim.bridge.quantise_duty).
             d, en = np.empty(n), np.empty(n, dtype=bool)
-            _bridge(duty, enable, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt)
+            apply_bridge(duty, enable, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt)
             self._duty, self._enable = d, en
             if self._record_inputs:
                 self._inputs.append((d.copy(), en.copy()))
@@ -556,6 +725,44 @@ def run(
     return RunResult(log, sim.pc_read(), sim.link_stats(), exp, counters)
 
 
+# The arithmetics whose compiled tick this process has loaded.
+_LOADED: set[bool] = set()
+
+
+@contextmanager
+def compile_notice(stream: Any = None) -> Iterator[None]:
+    """Say on stderr what is happening if the block takes more than a second: numba
+    compiling the kernels (once after an install; then they load from ``__pycache__``)."""
+    stream = stream if stream is not None else sys.stderr
+
+    def say() -> None:
+        stream.write(
+            "compiling the simulation's kernels (once after an install, about 10-30 s; "
+            "cached in __pycache__)...\n"
+        )
+        stream.flush()
+
+    timer = threading.Timer(1.0, say)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
+def warm_up(bench: BenchConfig, *, batch: int | None = None) -> None:
+    """Load the compiled tick with the types a run of ``bench`` uses (numba's start-up:
+    from its cache in a few tenths of a second, or compiled the first time after an
+    install, with a message), so that a caller can time it apart from the run."""
+    sim = Simulation(bench, batch=batch)
+    with compile_notice():
+        sim.step(1)  # the boot tick: the firmware's and the plant's compiled steps
+        ftick.framer_ok()
+        if sim._compiled:
+            sim._run_compiled(0)  # the compiled tick, stopping at once
+
+
 def uart_faults(uart: UartParams) -> FaultInjection | None:
     """The line faults of ``[uart]`` (both directions), or None for a clean line."""
     rates = (uart.bit_flip_rate, uart.drop_rate, uart.insert_rate, uart.burst_rate)
@@ -565,44 +772,3 @@ def uart_faults(uart: UartParams) -> FaultInjection | None:
 
 
 _NO_DRAW = np.empty(0)
-
-
-@numba.njit(cache=True)
-def _adc_counts(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out):
-    """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
-    current in the direction of ``sense_sign``, the high side only) through
-    ``sim.bridge.adc_counts`` (rounded to nearest, plus noise, clamped to the ADC range).
-    ``draw``: one standard normal per member, or nothing for a noiseless ADC."""
-    noisy = draw.shape[0] > 0
-    for j in range(x.shape[0]):
-        v = sense_sign[j] * x[j, I_A]
-        c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
-        c = c / a_per_lsb[j] + 0.5
-        if noisy:
-            c = c + noise_lsb[j] * draw[j]
-        c = np.floor(c)
-        if c > adc_full:
-            c = adc_full
-        if c < 0.0:
-            c = 0.0
-        out[j] = np.int64(c)
-
-
-@numba.njit(cache=True)
-def _bridge(duty, enable, arr, supply_v, d_out, en_out, sense_sign, volt):
-    """The bridge per member: the duty clamped to [-1, 1] on the timer's ``1/arr`` steps
-    (``sim.bridge.quantise_duty``, half to even), the enable, the IS pin's sign of the
-    next period and the average output voltage (0 while disabled)."""
-    for j in range(d_out.shape[0]):
-        v = duty[j]
-        if v < -1.0:
-            v = -1.0
-        if v > 1.0:
-            v = 1.0
-        v = np.rint(v * arr[j]) / arr[j]
-        e = bool(enable[j])
-        d_out[j] = v
-        en_out[j] = e
-        sign = 1.0 if v > 0.0 else (-1.0 if v < 0.0 else (0.0 if v == 0.0 else v))
-        sense_sign[j] = sign if e else 0.0
-        volt[j] = v * supply_v[j] if e else 0.0

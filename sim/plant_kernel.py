@@ -135,12 +135,13 @@ def hermite_leaves(p0, p1, m0, m1, edge):
 
 
 @numba.njit(cache=True)
-def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, h, kc):
+def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
     the backlash gap). Each boundary variable (motor speed, platter speed, twist) is
-    interpolated by the cubic Hermite through its values and rates at both ends (``rates``:
-    the mode's rows of the motor and platter accelerations); an interior extremum
+    interpolated by the cubic Hermite through its values and rates at both ends
+    (``rates[row]``: the mode's rows of the motor and platter accelerations); an interior
+    extremum
     on the other side of a boundary calls for halving.
 
     A speed whose ends are farther from its band than ``h`` times a bound on its
@@ -178,18 +179,34 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, h, kc):
     check_p = ap0 <= gate_p or ap1 <= gate_p
     if not (check_m or check_p):
         return False
-    rv, rp = rates[0], rates[1]
-    wd0 = rv[0] * i0 + rv[2] * w0 + rv[3] * t0 + rv[4] * p0 + rv[6]
-    pd0 = rp[0] * i0 + rp[2] * w0 + rp[3] * t0 + rp[4] * p0 + rp[6]
-    wd1 = rv[0] * i1 + rv[2] * w1 + rv[3] * t1 + rv[4] * p1 + rv[6]
-    pd1 = rp[0] * i1 + rp[2] * w1 + rp[3] * t1 + rp[4] * p1 + rp[6]
+    v0, v2, v3, v4, v6 = (
+        rates[row, 0, 0],
+        rates[row, 0, 2],
+        rates[row, 0, 3],
+        rates[row, 0, 4],
+        rates[row, 0, 6],
+    )
+    q0, q2, q3, q4, q6 = (
+        rates[row, 1, 0],
+        rates[row, 1, 2],
+        rates[row, 1, 3],
+        rates[row, 1, 4],
+        rates[row, 1, 6],
+    )
+    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
+    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
+    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
+    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
     return (check_m and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)) or (
         check_p and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
     )
 
 
 @numba.njit(cache=True)
-def step(i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc):
+def step(
+    i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
+    stack_key,
+):  # fmt: skip
     """One plant step of ``h_s`` with ``(d, en)`` held, from mode ``start_key`` (-1: work
     it out), as ``Plant.update`` describes: halve a step whose end mode differs from
     its start mode (or that leaves and re-enters it) up to ``levels`` times,
@@ -206,9 +223,8 @@ def step(i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, 
     if start_key < 0:
         start_key = key(i, w, tw, wp, d, en, kc)
     # Pending sub-steps (level, start key or -1 for the mode of the state reached), last
-    # in first out: a halved step pushes its second half, then its first.
-    stack_level = np.empty(2 * levels + 2, dtype=np.int64)
-    stack_key = np.empty(2 * levels + 2, dtype=np.int64)
+    # in first out: a halved step pushes its second half, then its first. ``stack_level``,
+    # ``stack_key``: (2 * levels + 2,) int64 scratch, the caller's (no allocation per step).
     stack_level[0] = 0
     stack_key[0] = start_key
     top = 1
@@ -223,18 +239,50 @@ def step(i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, 
         row = slots[k]
         if row < 0:
             return i, p, w, tw, wp, key_end, n_events, k
-        r = phis[row, level]
-        r0, r1, r2, r3, r4 = r[0], r[1], r[2], r[3], r[4]
-        ni = r0[0] * i + r0[2] * w + r0[3] * tw + r0[4] * wp + r0[5] * d + r0[6]
-        np_ = p + r1[0] * i + r1[2] * w + r1[3] * tw + r1[4] * wp + r1[5] * d + r1[6]
-        nw = r2[0] * i + r2[2] * w + r2[3] * tw + r2[4] * wp + r2[5] * d + r2[6]
-        ntw = r3[0] * i + r3[2] * w + r3[3] * tw + r3[4] * wp + r3[5] * d + r3[6]
-        nwp = r4[0] * i + r4[2] * w + r4[3] * tw + r4[4] * wp + r4[5] * d + r4[6]
+        # Scalar loads, no views (a view costs reference counting in numba).
+        ni = (
+            phis[row, level, 0, 0] * i
+            + phis[row, level, 0, 2] * w
+            + phis[row, level, 0, 3] * tw
+            + phis[row, level, 0, 4] * wp
+            + phis[row, level, 0, 5] * d
+            + phis[row, level, 0, 6]
+        )
+        np_ = (
+            p
+            + phis[row, level, 1, 0] * i
+            + phis[row, level, 1, 2] * w
+            + phis[row, level, 1, 3] * tw
+            + phis[row, level, 1, 4] * wp
+            + phis[row, level, 1, 5] * d
+            + phis[row, level, 1, 6]
+        )
+        nw = (
+            phis[row, level, 2, 0] * i
+            + phis[row, level, 2, 2] * w
+            + phis[row, level, 2, 3] * tw
+            + phis[row, level, 2, 4] * wp
+            + phis[row, level, 2, 5] * d
+            + phis[row, level, 2, 6]
+        )
+        ntw = (
+            phis[row, level, 3, 0] * i
+            + phis[row, level, 3, 2] * w
+            + phis[row, level, 3, 3] * tw
+            + phis[row, level, 3, 4] * wp
+            + phis[row, level, 3, 5] * d
+            + phis[row, level, 3, 6]
+        )
+        nwp = (
+            phis[row, level, 4, 0] * i + phis[row, level, 4, 2] * w
+            + phis[row, level, 4, 3] * tw + phis[row, level, 4, 4] * wp
+            + phis[row, level, 4, 5] * d + phis[row, level, 4, 6]
+        )  # fmt: skip
         key_end = key(ni, nw, ntw, nwp, d, en, kc)
         accept = key_end == k
         if accept and level < levels and budget > 0:
             h = h_s / (1 << level)
-            accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, rates[row], h, kc)
+            accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, rates, row, h, kc)
         if not accept and (level >= levels or budget <= 0):
             # Located to h / 2**levels: accept (a diode current stops at zero, a current that
             # reached the bridge's limitation is held at I_CL).
@@ -272,17 +320,26 @@ def step_members(
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do."""
     events = 0
+    stack_level = np.empty(2 * levels + 2, dtype=np.int64)
+    stack_key = np.empty(2 * levels + 2, dtype=np.int64)
+    # One parameter set (the common case): its views once, not per member.
+    shared = consts.shape[0] == 1
+    g = 0
+    kc = consts[0]
+    sl = slots[0]
     for j in range(start, x.shape[0]):
-        g = group[j]
-        kc = consts[g]
+        if not shared:
+            g = group[j]
+            kc = consts[g]
+            sl = slots[g]
         i = x[j, 0]
         en = enable[j]
         k0 = -1
         if known and en and -kc[_ICL] < i < kc[_ICL]:
             k0 = keys_in[j]
         r = step(
-            i, x[j, 1], x[j, 2], x[j, 3], x[j, 4], duty[j], en, k0, levels, budget, slots[g],
-            phis, rates, kc,
+            i, x[j, 1], x[j, 2], x[j, 3], x[j, 4], duty[j], en, k0, levels, budget, sl, phis,
+            rates, kc, stack_level, stack_key,
         )  # fmt: skip
         if r[7] >= 0:
             return j, events, g, r[7]

@@ -104,7 +104,8 @@ class Law:
         self.n = n
         servo, cur = params.servo, params.current
         self.fixed = servo.arithmetic == "fixed"
-        self._steps = fixed_q if self.fixed else float64
+        #: The module of compiled steps of this arithmetic (``estimate``, ``servo``, ``current``).
+        self.steps = fixed_q if self.fixed else float64
         self.dt_s = servo.dt_s
         self.dt_current_s = servo.dt_s / servo.current_loop_multiple
         self.delay = servo.compute_delay_ticks
@@ -212,7 +213,7 @@ class Law:
     # -- the three steps
     def estimate(self, raw_counts: npt.NDArray[np.int64]) -> None:
         """Unwrap the readings (int64 ``(n,)``) and update the velocity observer."""
-        self._steps.estimate(raw_counts, self.P, self.C, self.S, self.G, self.K)
+        self.steps.estimate(raw_counts, self.P, self.C, self.S, self.G, self.K)
 
     def servo(
         self,
@@ -223,7 +224,7 @@ class Law:
         i_limit_a: float,
     ) -> None:
         """Position P and velocity PI: sets ``vel_ref_dps`` and ``current_ref_a``."""
-        self._steps.servo(
+        self.steps.servo(
             float(sp_pos_deg), float(sp_vel_dps), float(sp_acc_dps2), float(v_clamp_dps),
             float(i_limit_a), self.P, self.C, self.S, self.G, self.K,
         )  # fmt: skip
@@ -233,7 +234,7 @@ class Law:
     ) -> npt.NDArray[np.float64]:
         """One current-loop period (``adc_counts`` int64 ``(n,)``, ``enabled`` bool
         ``(n,)``); returns ``duty`` (the view), applied by the bridge next period."""
-        self._steps.current(adc_counts, enabled, self.P, self.C, self.S, self.G, self.K)
+        self.steps.current(adc_counts, enabled, self.P, self.C, self.S, self.G, self.K)
         return self.P[P_DUTY]
 
     # -- views (axis units)

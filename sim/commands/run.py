@@ -32,15 +32,14 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _run(exp: Any, args: argparse.Namespace) -> int:
-    from sim import plant_kernel
     from sim.csvlog import write_csv
-    from sim.loop import run
+    from sim.loop import run, warm_up
     from sim.progress import Progress
 
-    # The compiled plant step loads once per process (numba's start-up): timed apart, so
-    # that the real-time factor below is the simulation's.
+    # The compiled tick loads once per process (numba's start-up): timed apart, so that
+    # the real-time factor below is the simulation's.
     load0 = time.perf_counter()
-    plant_kernel.warm_up(exp.bench.loop.event_levels)
+    warm_up(exp.bench)
     load_s = time.perf_counter() - load0
     n_ticks = max(1, round(exp.duration_s / exp.bench.dt_s))
     wall0 = time.perf_counter()

@@ -560,27 +560,38 @@ def test_signal_row_is_signals_in_order(make_bench, batch):
 
 
 def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
-    from firmware_model.firmware import _any_trip
+    from firmware_model import tick as ftick
+    from firmware_model.laws.layout import C_INNOV, C_STUCK, P_POS, P_VEL, P_VREF
 
     rng = np.random.default_rng(2)
     hits = 0
+    fs, fi = np.zeros(ftick.N_FS), np.zeros(ftick.N_FI, dtype=np.int64)
+    fi[ftick.FI_JUMP], fi[ftick.FI_STUCK] = 35, 10
+    fs[ftick.FS_STUCK_MIN_VEL], fs[ftick.FS_OVER_SPEED] = 100.0, 150.0
     for _ in range(3000):
         n = int(rng.integers(1, 9))
         innov = rng.integers(-40, 40, n)
         stuck = rng.integers(0, 12, n)
         vel_ref, vel = rng.normal(0.0, 60.0, n), rng.normal(0.0, 60.0, n)
         pos, sp = rng.normal(0.0, 1.0, n), float(rng.normal())
-        fe = math.inf if rng.random() < 0.3 else 2.0
+        step_mode = rng.random() < 0.3  # a STEP move: no following-error check
         lo, hi = (-2.5, 2.5) if rng.random() < 0.5 else (-math.inf, math.inf)
         want = (
             (np.abs(innov) > 35)
             | ((stuck >= 10) & (np.abs(vel_ref) > 100.0))
             | (np.abs(vel) > 150.0)
-            | (np.abs(sp - pos) > fe)
+            | ((np.abs(sp - pos) > 2.0) & (not step_mode))
             | (pos < lo)
             | (pos > hi)
         ).any()
-        got = _any_trip(innov, stuck, vel_ref, vel, pos, sp, 35, 10, 100.0, 150.0, fe, lo, hi)
+        P, C = np.zeros((7, n)), np.zeros((8, n), dtype=np.int64)
+        C[C_INNOV], C[C_STUCK] = innov, stuck
+        P[P_VREF], P[P_VEL], P[P_POS] = vel_ref, vel, pos
+        fs[ftick.FS_SP_POS] = sp
+        fs[ftick.FS_FOLLOWING] = 2.0
+        fs[ftick.FS_POS_LO], fs[ftick.FS_POS_HI] = lo, hi
+        fi[ftick.FI_MODE] = ftick.MODE_STEP if step_mode else ftick.MODE_HOLD
+        got = ftick.trip_screen(P, C, fs, fi)
         assert got == want
         hits += bool(want)
     assert 300 < hits < 2700

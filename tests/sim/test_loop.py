@@ -345,9 +345,8 @@ def test_run_hands_over_the_same_batch_log_as_log(tmp_path):
         np.testing.assert_array_equal(getattr(res.log, f), getattr(log, f), err_msg=f)
 
 
-def test_batch_bridge_and_adc_kernels_compute_sim_bridge():
-    from sim.bridge import adc_counts, quantise_duty, sensed_current_a
-    from sim.loop import _NO_DRAW, _adc_counts, _bridge
+def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
+    from sim.bridge import adc_counts, apply_bridge, quantise_duty, read_adc, sensed_current_a
     from sim.params import BridgeParams, CurrentSenseParams
 
     n = 5000
@@ -359,7 +358,7 @@ def test_batch_bridge_and_adc_kernels_compute_sim_bridge():
     enable = rng.random(n) < 0.8
     arr, vs = np.full(n, float(bridge.arr)), rng.uniform(20.0, 26.0, n)
     d, en, sign, volt = np.empty(n), np.empty(n, dtype=bool), np.empty(n), np.empty(n)
-    _bridge(duty, enable, arr, vs, d, en, sign, volt)
+    apply_bridge(duty, enable, arr, vs, d, en, sign, volt)
     assert d.tobytes() == quantise_duty(duty, bridge).tobytes()
     np.testing.assert_array_equal(en, enable)
     np.testing.assert_array_equal(volt, np.where(enable, d * vs, 0.0))
@@ -367,9 +366,9 @@ def test_batch_bridge_and_adc_kernels_compute_sim_bridge():
     x[:, 0] = rng.uniform(-40.0, 40.0, n)
     a_per_lsb = np.full(n, sense.a_per_lsb)
     want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense)
-    for draw, noise in ((_NO_DRAW, np.zeros(n)), (rng.standard_normal(n), np.full(n, 3.0))):
+    for draw, noise in ((np.empty(0), np.zeros(n)), (rng.standard_normal(n), np.full(n, 3.0))):
         got = np.empty(n, dtype=np.int64)
-        _adc_counts(x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got)
+        read_adc(x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got)
         if draw.size:
             want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense, noise * draw)
         np.testing.assert_array_equal(got, want)

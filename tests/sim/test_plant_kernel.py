@@ -81,7 +81,7 @@ class _Recursion:
         i0, _, w0, t0, p0 = x
         i1, _, w1, t1, p1 = xn
         return plant_kernel._excursion(
-            i0, w0, t0, p0, i1, w1, t1, p1, p._rates[row], h, p._consts[0]
+            i0, w0, t0, p0, i1, w1, t1, p1, p._rates, row, h, p._consts[0]
         )
 
 

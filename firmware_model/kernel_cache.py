@@ -1,0 +1,65 @@
+"""Keeps numba's on-disk cache of the compiled kernels consistent across source files.
+
+Numba caches a compiled function (``cache=True``) keyed on its own source file only: a
+kernel that calls kernels of other files (``sim/tick.py``'s ``run_ticks`` calls the law,
+the plant, the encoder...) or freezes their constants would load stale machine code after
+one of those files changed. So: a digest of every kernel source file is kept next to the
+cache; when it changes, the cached kernels of all those files are dropped and compile again
+(once; ``sim.loop.compile_notice`` says so if it takes more than a second).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+__all__ = ["KERNEL_SOURCES", "check"]
+
+_ROOT = Path(__file__).resolve().parents[1]
+#: Every source file with compiled kernels or constants frozen into them (repo-relative).
+KERNEL_SOURCES = (
+    "firmware_model/fixedpoint.py",
+    "firmware_model/laws/dispatch.py",
+    "firmware_model/laws/fixed_q.py",
+    "firmware_model/laws/float64.py",
+    "firmware_model/laws/layout.py",
+    "firmware_model/tick.py",
+    "firmware_model/units.py",
+    "serial_protocol/uart.py",
+    "sim/bridge.py",
+    "sim/encoder.py",
+    "sim/plant.py",
+    "sim/plant_kernel.py",
+    "sim/tick.py",
+)
+
+
+def check() -> None:
+    """Drop the cached kernels if any kernel source changed since they were cached."""
+    paths = [_ROOT / name for name in KERNEL_SOURCES]
+    digest = hashlib.sha1()
+    for path in paths:
+        try:
+            digest.update(path.read_bytes())
+        except OSError:
+            return  # not a source tree (e.g. a zipped install): nothing to keep in step
+    stamp = _ROOT / "firmware_model" / "__pycache__" / "kernels.sha1"
+    want = digest.hexdigest()
+    try:
+        if stamp.read_text() == want:
+            return
+    except OSError:
+        pass
+    for cache_dir in {path.parent / "__pycache__" for path in paths}:
+        for stem in {path.stem for path in paths if path.parent == cache_dir.parent}:
+            for pattern in (f"{stem}.*.nbi", f"{stem}.*.nbc"):
+                for cached in cache_dir.glob(pattern):
+                    try:
+                        cached.unlink()
+                    except OSError:
+                        pass
+    try:
+        stamp.parent.mkdir(exist_ok=True)
+        stamp.write_text(want)
+    except OSError:
+        pass

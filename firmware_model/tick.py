@@ -1,0 +1,322 @@
+"""The firmware's numeric servo tick, compiled: setpoint, position and velocity loops, trip
+screen, current loop with its over-current screen, and telemetry framing, for N members.
+
+``Firmware.servo_tick`` / ``current_tick`` (one tick at a time, Python in between) and the
+simulation's compiled run of many ticks (``sim/tick.py``) call these same functions; Python
+keeps what is rare and rich: commands, planning, the trips themselves (a screen hit hands
+over to ``Firmware._check``), replies.
+
+The firmware's shared state lives in two small arrays, ``fs`` (float64, ``FS_*``) and
+``fi`` (int64, ``FI_*``), which ``Firmware._pack`` / ``_unpack`` fill from and copy back to
+its attributes; the active motion profile in ``prof`` (``(n_phases, 5)``: start time, p, v,
+a, j of each phase, as ``planner.profile.Profile`` holds them) and ``fs``'s ``FS_PROF_*``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from firmware_model import safety
+from firmware_model.laws import dispatch as law
+from firmware_model.laws.layout import C_INNOV, C_STUCK, P_IMEAS, P_POS, P_VEL, P_VREF
+from serial_protocol import frame
+from serial_protocol.messages import State
+
+__all__ = [
+    "TABLES", "framer_ok", "current_stage", "frame_telemetry", "servo_stage", "state_of",
+    "trip_screen",
+]  # fmt: skip
+
+# fs: floats.
+(
+    FS_SP_POS, FS_SP_VEL, FS_SP_ACC, FS_TARGET, FS_V_CLAMP, FS_I_LIMIT, FS_FOLLOWING, FS_DT,
+    FS_TOL, FS_OC_THR, FS_STUCK_MIN_VEL, FS_OVER_SPEED, FS_PROF_T0, FS_PROF_DURATION,
+    FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
+    FS_TRAVEL_MAX, FS_EDGE_DECEL,
+) = range(23)  # fmt: skip
+N_FS = 23
+# fi: integers.
+(
+    FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
+    FI_OC_ANY, FI_OC_SAMPLES, FI_TX_FRAMES, FI_TX_BYTES, FI_TX_DROPPED, FI_JUMP, FI_STUCK,
+    FI_HEARTBEAT,
+) = range(16)  # fmt: skip
+N_FI = 16
+MODE_HOLD, MODE_PLAN, MODE_STEP = 0, 1, 2
+_DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
+    int(State.DISABLED),
+    int(State.IDLE),
+    int(State.MOVING),
+    int(State.HOLDING),
+    int(State.FAULT),
+)
+
+
+# The STEP move's speed limit near the travel ends: safety's function, compiled.
+_edge_speed_dps = numba.njit(cache=True)(safety.edge_speed_dps)
+
+
+@numba.njit(cache=True)
+def profile_at(prof, fs, t):
+    """``Profile._at_scalar(t)`` of the packed profile (the same operations in order)."""
+    duration = fs[FS_PROF_DURATION]
+    if 0.0 <= t < duration:
+        # bisect_right over the phase start times, minus one
+        lo, hi = 0, prof.shape[0]
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if t < prof[mid, 0]:
+                hi = mid
+            else:
+                lo = mid + 1
+        i = lo - 1
+        tau = t - prof[i, 0]
+        p, v, a, j = prof[i, 1], prof[i, 2], prof[i, 3], prof[i, 4]
+        jt = j * tau
+        return (
+            p + tau * (v + tau * (0.5 * a + jt / 6.0)),
+            v + tau * (a + 0.5 * jt),
+            a + jt,
+        )
+    if t < 0.0:
+        return fs[FS_PROF_P0], fs[FS_PROF_V0], 0.0
+    return fs[FS_PROF_P1] + fs[FS_PROF_V1] * (t - duration), fs[FS_PROF_V1], 0.0
+
+
+@numba.njit(cache=True)
+def _in_position(P, fs, enabled):
+    """Every live member within ``in_position_deg`` of the target and slower than that
+    per 0.1 s (True with no live member)."""
+    tol = fs[FS_TOL]
+    target = fs[FS_TARGET]
+    for j in range(enabled.shape[0]):
+        if enabled[j] and not (abs(P[P_POS, j] - target) <= tol and abs(P[P_VEL, j]) <= 10 * tol):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def servo_stage(P, C, S, G, K, fs, fi, enabled, prof):
+    """The setpoint of this tick (hold, the profile, or a STEP move's raw target), then, if
+    any member is enabled, the position and velocity loops (``servo``: the law's step) and
+    the trip screen. Returns True if a member meets a trip condition (encoder jump or
+    stuck, over-speed, following error, watchdog): ``Firmware._check`` takes it from
+    there. ``fi[FI_TICK]`` is not advanced here."""
+    t_s = fi[FI_TICK] * fs[FS_DT]
+    mode = fi[FI_MODE]
+    v_clamp = fs[FS_V_CLAMP]
+    if mode == MODE_PLAN:
+        tau = t_s - fs[FS_PROF_T0]
+        fi[FI_MOVING] = 1 if tau < fs[FS_PROF_DURATION] else 0
+        p, v, a = profile_at(prof, fs, tau)
+    elif mode == MODE_STEP:
+        p, v, a = fs[FS_TARGET], 0.0, 0.0
+        if fi[FI_MOVING]:
+            fi[FI_MOVING] = 0 if _in_position(P, fs, enabled) else 1
+        # Slow down near the travel end the move heads for (Firmware._step_edge_speed_dps:
+        # from the outermost member).
+        up = p >= P[P_POS, 0]
+        pos = P[P_POS, 0]
+        for j in range(P.shape[1]):
+            pos = max(pos, P[P_POS, j]) if up else min(pos, P[P_POS, j])
+        edge = _edge_speed_dps(pos, p, fs[FS_TRAVEL_MIN], fs[FS_TRAVEL_MAX], fs[FS_EDGE_DECEL])
+        v_clamp = min(v_clamp, edge)
+    else:
+        p, v, a = fs[FS_SP_POS], 0.0, 0.0
+    fs[FS_SP_POS], fs[FS_SP_VEL], fs[FS_SP_ACC] = p, v, a
+    live = False
+    for j in range(enabled.shape[0]):
+        if enabled[j]:
+            live = True
+            break
+    if not live:
+        return False
+    law.servo(p, v, a, v_clamp, fs[FS_I_LIMIT], P, C, S, G, K)
+    return trip_screen(P, C, fs, fi)
+
+
+@numba.njit(cache=True)
+def trip_screen(P, C, fs, fi):
+    """Whether a member meets a trip condition after this tick's servo step (encoder jump
+    or stuck, over-speed, position outside ``[FS_POS_LO, FS_POS_HI]``, following error
+    against ``fs[FS_SP_POS]``, watchdog)."""
+    if fi[FI_WATCHDOG] and fi[FI_TICK] - fi[FI_LAST_RX] > fi[FI_WATCHDOG]:
+        return True
+    p = fs[FS_SP_POS]
+    following = fs[FS_FOLLOWING] if fi[FI_MODE] != MODE_STEP else math.inf
+    jump, stuck_limit = fi[FI_JUMP], fi[FI_STUCK]
+    stuck_vel, over_speed = fs[FS_STUCK_MIN_VEL], fs[FS_OVER_SPEED]
+    lo, hi = fs[FS_POS_LO], fs[FS_POS_HI]
+    for j in range(C.shape[1]):
+        if (
+            abs(C[C_INNOV, j]) > jump
+            or (C[C_STUCK, j] >= stuck_limit and abs(P[P_VREF, j]) > stuck_vel)
+            or abs(P[P_VEL, j]) > over_speed
+            or not lo <= P[P_POS, j] <= hi
+            or abs(p - P[P_POS, j]) > following
+        ):
+            return True
+    return False
+
+
+@numba.njit(cache=True)
+def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
+    """One current-loop period (the law's step) and the over-current screen:
+    a member counts the periods its |sensed current| stays above the threshold while
+    enabled. Returns True if one reached the trip count (``oc_ticks`` says which)."""
+    law.current(adc, enabled, P, C, S, G, K)
+    thr = fs[FS_OC_THR]
+    over_any = False
+    for j in range(adc.shape[0]):
+        if abs(P[P_IMEAS, j]) > thr:
+            over_any = True
+            break
+    if not over_any:  # the common case
+        if fi[FI_OC_ANY]:
+            oc_ticks[:] = 0
+            fi[FI_OC_ANY] = 0
+        return False
+    fi[FI_OC_ANY] = 1
+    trip = False
+    for j in range(adc.shape[0]):
+        if enabled[j] and abs(P[P_IMEAS, j]) > thr:
+            oc_ticks[j] += 1
+            if oc_ticks[j] >= fi[FI_OC_SAMPLES]:
+                trip = True
+        else:
+            oc_ticks[j] = 0
+    return trip
+
+
+@numba.njit(cache=True)
+def state_of(j, fi, enabled, fault):
+    """The ``State`` code of member ``j``."""
+    if fault[j]:
+        return _FAULT
+    if not enabled[j]:
+        return _DISABLED
+    if fi[FI_MOVING]:
+        return _MOVING
+    return _HOLDING if fi[FI_MOVED] else _IDLE
+
+
+# ---------------------------------------------------------------- telemetry framing
+# The telemetry frame, built from serial_protocol's own tables and checked against its
+# encoder below (framer_ok); a format this framer does not know leaves the framing to
+# serial_protocol.frame (framer_ok() False: the simulation hands every telemetry tick to
+# Python).
+_FMT = frame._TELEMETRY.fmt
+_HEAD_BYTES = frame.HEADER_BYTES
+_CRC_BYTES = frame.TELEMETRY_FRAME_BYTES - frame.HEADER_BYTES - frame._TELEMETRY_LEN
+_HEADS = np.array([list(h) for h, _ in frame._TELEMETRY_HEADS], dtype=np.uint8)
+_HEAD_CRC = np.array([c for _, c in frame._TELEMETRY_HEADS], dtype=np.int64)
+_SIZES = {"I": 4, "i": 4, "h": 2, "H": 2, "B": 1, "b": 1}
+# Per payload field after the tick: byte size, scale, lowest and highest wire value.
+_SAT = {name: (scale, lo, hi) for name, scale, lo, hi in frame._TELEMETRY_SATURATION}
+_NAMES = ("sp_pos_deg", "sp_vel_dps", "pos_deg", "vel_dps", "current_a", "duty")
+
+
+def _crc_table(width: int) -> np.ndarray:
+    table = np.zeros(256, dtype=np.int64)
+    for byte in range(256):
+        if width == 16:  # CRC-16/CCITT, not reflected (binascii.crc_hqx)
+            crc = byte << 8
+            for _ in range(8):
+                crc = ((crc << 1) ^ 0x1021) & 0xFFFF if crc & 0x8000 else (crc << 1) & 0xFFFF
+        else:  # CRC-32/ISO-HDLC, reflected (zlib.crc32)
+            crc = byte
+            for _ in range(8):
+                crc = (crc >> 1) ^ 0xEDB88320 if crc & 1 else crc >> 1
+        table[byte] = crc
+    return table
+
+
+_CRC_TABLE = _crc_table(16 if _CRC_BYTES == 2 else 32)
+_FIELD_SIZE = np.array([_SIZES.get(c, 0) for c in _FMT[1:7]], dtype=np.int64)
+_FIELD_SCALE = np.array([_SAT.get(n, (1.0, 0, 0))[0] for n in _NAMES])
+_FIELD_LO = np.array([float(_SAT.get(n, (1.0, 0, 0))[1]) for n in _NAMES])
+_FIELD_HI = np.array([float(_SAT.get(n, (1.0, 0, 0))[2]) for n in _NAMES])
+
+
+@numba.njit(cache=True)
+def _put(out, at, value, size):
+    for b in range(size):
+        out[at + b] = (value >> (8 * b)) & 0xFF
+    return at + size
+
+
+@numba.njit(cache=True)
+def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, tables):
+    """Write the telemetry frame of ``(tick, values = (sp_pos_deg, sp_vel_dps, pos_deg,
+    vel_dps, current_a, duty), state, fault, fault_flags)`` with sequence ``seq`` into
+    ``out[at:]``
+    (values beyond the wire range saturate, as ``frame.encode_telemetry_fields``).
+    ``tables``: :data:`TABLES`, serial_protocol's (passed in, not frozen into the compiled
+    code, so that a new frame format is never served from numba's cache). Returns the
+    index after the frame, or -1 for a NaN (which ``frame`` refuses)."""
+    heads, head_crc, crc_table, size, scale, lo, hi, widths = tables
+    head_bytes, crc_bytes, flag_bytes = widths[0], widths[1], widths[2]
+    head = heads[seq]
+    for b in range(head_bytes):
+        out[at + b] = head[b]
+    start = at + head_bytes
+    pos = _put(out, start, tick & 0xFFFFFFFF, 4)
+    for f in range(6):
+        x = values[f] * scale[f]
+        if x != x:
+            return -1
+        x = min(max(x, lo[f]), hi[f])
+        pos = _put(out, pos, np.int64(np.rint(x)), size[f])
+    out[pos] = state
+    out[pos + 1] = fault
+    pos = _put(out, pos + 2, fault_flags & 0xFFFFFFFF, flag_bytes)
+    crc = head_crc[seq]
+    if crc_bytes == 2:
+        for b in range(start, pos):
+            crc = ((crc << 8) & 0xFFFF) ^ crc_table[((crc >> 8) ^ out[b]) & 0xFF]
+    else:
+        crc = ~crc & 0xFFFFFFFF
+        for b in range(start, pos):
+            crc = crc_table[(crc ^ out[b]) & 0xFF] ^ (crc >> 8)
+        crc = ~crc & 0xFFFFFFFF
+    return _put(out, pos, crc, crc_bytes)
+
+
+#: The tables ``frame_telemetry`` takes, from ``serial_protocol.frame``.
+TABLES = (
+    _HEADS, _HEAD_CRC, _CRC_TABLE, _FIELD_SIZE, _FIELD_SCALE, _FIELD_LO, _FIELD_HI,
+    np.array([_HEAD_BYTES, _CRC_BYTES, 4 if _FMT.endswith("BBI") else 0], dtype=np.int64),
+)  # fmt: skip
+
+
+def _framer_ok() -> bool:
+    """Whether ``frame_telemetry`` writes what ``frame.encode_telemetry_fields`` writes."""
+    if _FMT not in ("IiiiihhBB", "IiiiihhBBI") or _CRC_BYTES not in (2, 4) or len(_SAT) != 6:
+        return False
+    flags = _FMT.endswith("I")
+    rng = np.random.default_rng(1)
+    out = np.zeros(frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
+    for k in range(64):
+        values = rng.normal(0.0, [1e3, 1e3, 1e3, 1e3, 3.0, 0.5]) * (1e6 if k % 9 == 0 else 1)
+        seq, tick, state, fault = k * 37 % 256, int(rng.integers(0, 1 << 33)), k % 5, k % 6
+        bits = int(rng.integers(0, 1 << 32)) if flags else 0
+        end = frame_telemetry(out, 0, seq, tick, values, state, fault, bits, TABLES)
+        extra = (bits,) if flags else ()
+        want = frame.encode_telemetry_fields(seq, tick, *values.tolist(), state, fault, *extra)
+        if end != len(want) or bytes(out[:end]) != want:
+            return False
+    return True
+
+
+_FRAMER_OK: list[bool] = []
+
+
+def framer_ok() -> bool:
+    """True if the compiled framer reproduces ``serial_protocol.frame``'s telemetry bytes
+    (checked once per process, on first use)."""
+    if not _FRAMER_OK:
+        _FRAMER_OK.append(_framer_ok())
+    return _FRAMER_OK[0]

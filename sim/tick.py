@@ -1,0 +1,244 @@
+"""The servo tick of the simulation, compiled end to end: many ticks in one call.
+
+``run_ticks`` runs the ticks of ``Simulation.step`` for the project's firmware, in the order
+of ``sim/loop.py``'s docstring, for N members:
+
+1. ``TOP``: the plant state at the sampling instant into the log; the encoder reading;
+   the observer (``law.estimate``).
+2. ``SERVO``: the setpoint, the position and velocity loops, the trip screen
+   (``firmware_model.tick.servo_stage``).
+3. ``TICKUP``, ``TRANSMIT``: the firmware's tick count, the telemetry frame into the TX
+   FIFO (``firmware_model.tick.frame_telemetry``), as ``Firmware._transmit`` does with no
+   reply queued.
+4. ``CURRENT``, ``BRIDGE``, ``PLANT`` (``current_loop_multiple`` times): the ADC, the
+   current loop and its over-current screen (``firmware_model.tick.current_stage``), the
+   bridge, the plant step (``sim.plant_kernel.step_members``).
+5. ``LOG``: the firmware's signals and the bridge voltage into the log row; the TX line
+   shifts out one tick of bytes (``serial_protocol.uart.pace``).
+
+Python keeps what is rare and rich. ``run_ticks`` returns at an event with a ``STOP_*`` code,
+its place kept in ``ctx`` (tick, stage, current-loop period, plant member); the caller
+(``Simulation._run_compiled``) handles the event and calls again to resume:
+
+=================  ===========================================================
+``STOP_END``       the requested ticks are done
+``STOP_RX``        bytes reached the board (or the silence rule fires): the receive side
+``STOP_TRIP``      the trip screen hit: ``Firmware._check`` latches the trips
+``STOP_TRANSMIT``  replies are queued, a heartbeat is due (or no compiled framer):
+                   ``Firmware._transmit``
+``STOP_OC``        an over-current trip: ``Firmware._trip``
+``STOP_MODE``      the plant met a mode without matrices: ``Plant._load``
+``STOP_NOISE``     a block of noise draws is used up: draw the next block
+``STOP_UART``      the PC -> board line is busy: move its bytes (``EmulatedUart``)
+=================  ===========================================================
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from firmware_model.laws import dispatch as law_steps
+from firmware_model.laws.layout import (
+    P_DUTY,
+    P_IMEAS,
+    P_IREF,
+    P_POS,
+    P_VEL,
+    P_VEL_RAW,
+)
+from firmware_model.tick import (
+    FI_DECIMATION,
+    FI_HEARTBEAT,
+    FI_SEQ,
+    FI_TICK,
+    FI_TX_BYTES,
+    FI_TX_DROPPED,
+    FI_TX_FRAMES,
+    FS_SP_ACC,
+    FS_SP_POS,
+    FS_SP_VEL,
+    current_stage,
+    frame_telemetry,
+    servo_stage,
+    state_of,
+)
+from serial_protocol import uart
+from sim.bridge import apply_bridge, read_adc
+from sim.encoder import _read
+from sim.plant_kernel import step_members
+
+__all__ = ["run_ticks"]
+
+(
+    STOP_END, STOP_RX, STOP_TRIP, STOP_TRANSMIT, STOP_OC, STOP_MODE, STOP_NOISE, STOP_UART,
+) = range(8)  # fmt: skip
+TOP, SERVO, TICKUP, TRANSMIT, CURRENT, BRIDGE, PLANT, LOG = range(8)
+# ctx: where the run is and what it owes the caller.
+(
+    CX_K, CX_STAGE, CX_PERIOD, CX_MEMBER, CX_TXLEN, CX_SHIFTED, CX_PENDING, CX_ENC_ROW,
+    CX_ADC_ROW, CX_EVENTS, CX_NEED_GROUP, CX_NEED_MODE, CX_KNOWN, CX_FLIP,
+) = range(14)  # fmt: skip
+N_CX = 14
+# flags: what the caller says about this run.
+(
+    F_REPLIES, F_RX_PRESENT, F_RX_ACTIVE, F_FRAMER, F_KEEP, F_FIFO, F_FRAME_BYTES,
+    F_ENC_NOISY, F_ADC_NOISY, F_SILENCE_AT,
+) = range(10)  # fmt: skip
+N_F = 10
+
+_pace = numba.njit(cache=True)(uart.pace)
+
+
+@numba.njit(cache=True)
+def run_ticks(
+    k_end, ctx, credit, flags, law, fw, sim, plant, logs, txbuf, tables,
+):  # fmt: skip
+    """Run ticks until ``k_end`` or an event (see the module docstring); returns the
+    ``STOP_*`` code. ``credit`` (``(1,)``) is the TX line's banked credit.
+
+    ``law = (P, C, S, G, K)``: the control law's state (its arithmetic picks its steps);
+    ``fw = (fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags)``; ``sim = (x0, x1, dt_s,
+    multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
+    sense_sign, volt, duty, enable, counts, adc, bytes_per_s)``; ``plant = (keys, group,
+    slots, phis, rates, consts, levels, budget)``; ``logs = (xlog, signals (11 arrays of
+    (capacity, N)), voltage)``."""
+    P, C, S, G, K = law
+    fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags = fw
+    x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
+    adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
+    keys, group, slots, phis, rates, consts, levels, budget = plant
+    xlog, signals, voltage = logs
+    latency, offset, enc_noise, counts_per_rad, counts_per_rev = enc_params
+    a_per_lsb, adc_noise = adc_params
+    arr, supply_v = bridge_params
+    n = x0.shape[0]
+    no_draw = np.empty(0)
+    keep = flags[F_KEEP] != 0
+    frame_bytes = flags[F_FRAME_BYTES]
+    while True:
+        k = ctx[CX_K]
+        stage = ctx[CX_STAGE]
+        x = x1 if ctx[CX_FLIP] else x0
+        xn = x0 if ctx[CX_FLIP] else x1
+        if stage == TOP:
+            if k >= k_end:
+                return STOP_END
+            draw = no_draw
+            if flags[F_ENC_NOISY]:
+                if ctx[CX_ENC_ROW] >= enc_block.shape[0]:
+                    return STOP_NOISE
+                draw = enc_block[ctx[CX_ENC_ROW]]
+                ctx[CX_ENC_ROW] += 1
+            if keep:
+                xlog[k] = x
+            _read(x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts)
+            law_steps.estimate(counts, P, C, S, G, K)
+            stage = SERVO
+            silence = flags[F_SILENCE_AT] >= 0 and fi[FI_TICK] >= flags[F_SILENCE_AT]
+            if flags[F_RX_PRESENT] or silence:
+                ctx[CX_STAGE] = SERVO
+                return STOP_RX
+        if stage == SERVO:
+            hit = servo_stage(P, C, S, G, K, fs, fi, enabled, prof)
+            stage = TICKUP
+            if hit:
+                ctx[CX_STAGE] = TICKUP
+                return STOP_TRIP
+        if stage == TICKUP:
+            fi[FI_TICK] += 1
+            stage = TRANSMIT
+        if stage == TRANSMIT:
+            hb = fi[FI_HEARTBEAT]
+            if flags[F_REPLIES] or not flags[F_FRAMER] or (hb and fi[FI_TICK] % hb == 0):
+                ctx[CX_STAGE] = CURRENT
+                ctx[CX_PERIOD] = 0
+                return STOP_TRANSMIT
+            dec = fi[FI_DECIMATION]
+            if dec and (fi[FI_TICK] - 1) % dec == 0:
+                free = flags[F_FIFO] - ctx[CX_PENDING]
+                if frame_bytes <= free:
+                    at = ctx[CX_TXLEN]
+                    values = np.empty(6)
+                    values[0], values[1] = fs[FS_SP_POS], fs[FS_SP_VEL]
+                    values[2], values[3] = P[P_POS, 0], P[P_VEL, 0]
+                    # The bridge is off for the next period if disabled, whatever the law said.
+                    values[4] = P[P_IMEAS, 0]
+                    values[5] = P[P_DUTY, 0] if enabled[0] else 0.0
+                    end = frame_telemetry(
+                        txbuf, at, fi[FI_SEQ], fi[FI_TICK] - 1, values,
+                        state_of(0, fi, enabled, fault), fault[0],
+                        fault_flags[0] if fault[0] else 0, tables,
+                    )  # fmt: skip
+                    if end < 0:  # NaN: frame refuses it, the firmware's Python says so
+                        ctx[CX_STAGE] = CURRENT
+                        ctx[CX_PERIOD] = 0
+                        return STOP_TRANSMIT
+                    ctx[CX_TXLEN] = end
+                    ctx[CX_PENDING] += end - at
+                    fi[FI_SEQ] = (fi[FI_SEQ] + 1) & 0xFF
+                    fi[FI_TX_FRAMES] += 1
+                    fi[FI_TX_BYTES] += end - at
+                else:
+                    fi[FI_TX_DROPPED] += 1
+            stage = CURRENT
+            ctx[CX_PERIOD] = 0
+        while stage == CURRENT or stage == BRIDGE or stage == PLANT:
+            if stage == CURRENT:
+                draw = no_draw
+                if flags[F_ADC_NOISY]:
+                    if ctx[CX_ADC_ROW] >= adc_block.shape[0]:
+                        ctx[CX_STAGE] = CURRENT
+                        return STOP_NOISE
+                    draw = adc_block[ctx[CX_ADC_ROW]]
+                    ctx[CX_ADC_ROW] += 1
+                read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc)
+                en_now[:] = enabled
+                stage = BRIDGE
+                if current_stage(adc, en_now, P, C, S, G, K, fs, fi, oc_ticks):
+                    ctx[CX_STAGE] = BRIDGE
+                    return STOP_OC
+            if stage == BRIDGE:
+                apply_bridge(P[P_DUTY], en_now, arr, supply_v, duty, enable, sense_sign, volt)
+                stage = PLANT
+                ctx[CX_MEMBER] = 0
+            if stage == PLANT:
+                start, events, g, need = step_members(
+                    x, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group, slots,
+                    phis, rates, consts, levels, budget, xn, keys,
+                )  # fmt: skip
+                ctx[CX_EVENTS] += events
+                if need >= 0:
+                    ctx[CX_STAGE] = PLANT
+                    ctx[CX_MEMBER] = start
+                    ctx[CX_NEED_GROUP] = g
+                    ctx[CX_NEED_MODE] = need
+                    return STOP_MODE
+                ctx[CX_KNOWN] = 1
+                ctx[CX_FLIP] ^= 1
+                x, xn = xn, x
+                ctx[CX_PERIOD] += 1
+                stage = CURRENT if ctx[CX_PERIOD] < multiple else LOG
+        # LOG
+        if keep:
+            sp_pos, sp_vel, sp_acc = fs[FS_SP_POS], fs[FS_SP_VEL], fs[FS_SP_ACC]
+            for j in range(n):
+                signals[0][k, j] = sp_pos
+                signals[1][k, j] = sp_vel
+                signals[2][k, j] = sp_acc
+                signals[3][k, j] = P[P_POS, j]
+                signals[4][k, j] = P[P_VEL, j]
+                signals[5][k, j] = P[P_VEL_RAW, j]
+                signals[6][k, j] = P[P_IMEAS, j]
+                signals[7][k, j] = P[P_IREF, j]
+                signals[8][k, j] = P[P_DUTY, j]
+                signals[9][k, j] = state_of(j, fi, enabled, fault)
+                signals[10][k, j] = fault[j]
+                voltage[k, j] = volt[j]
+        shifted, credit[0] = _pace(credit[0], dt_s, bps, ctx[CX_PENDING])
+        ctx[CX_PENDING] -= shifted
+        ctx[CX_SHIFTED] += shifted
+        ctx[CX_K] = k + 1
+        ctx[CX_STAGE] = TOP
+        if flags[F_RX_ACTIVE]:
+            return STOP_UART
