@@ -483,7 +483,7 @@ class Simulation:
         k_end = self.tick + n_ticks
         n = self.n
         keep = self._keep_log
-        if keep and k_end > self._cap:
+        if keep and (k_end > self._cap or not self._arrays):
             self._grow(k_end)
         law, plant, enc = fw.law, self.plant, self.encoder
         ctx = np.zeros(st.N_CX, dtype=np.int64)
