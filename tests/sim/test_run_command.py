@@ -66,3 +66,34 @@ def test_config_error_exits_2_naming_the_key(tmp_path, capsys):
     assert cli.main(["run", str(cfg), "--out", str(tmp_path / "o"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "exp.toml" in err and "v_max_dps = 'x'" in err
+
+
+def test_the_run_figure_has_a_tracking_error_panel_and_returns_the_figure(tmp_path):
+    from sim.plot import plot_run
+
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text(EXP)
+    log = run(load_experiment(cfg)).log
+    fig = plot_run(log, tmp_path / "p.svg", title="t")
+    assert (tmp_path / "p.svg").read_text().lstrip().startswith("<?xml")
+    axes = fig.get_axes()
+    labels = [ax.get_ylabel() for ax in axes]
+    assert labels[1] == "tracking error\nsetpoint − position (°)"
+    err = {ln.get_label(): ln for ln in axes[1].get_lines()}
+    np.testing.assert_allclose(err["true"].get_ydata(), log.sp_pos_deg - log.true_pos_deg)
+    assert "output shaft" in labels[0] and "°/s" in labels[0]
+    assert plot_run(log) is not fig  # no path: nothing saved, a new figure
+
+
+def test_the_tune_figure_says_the_run_was_time_scaled(tmp_path):
+    from sim.tuning.plots import plot_before_after
+
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text(EXP)
+    log = run(load_experiment(cfg)).log
+    plain = plot_before_after({"config": log}, None, "Fig. 8: replanned at 2, 10 and 16 s")
+    assert plain.get_suptitle() == "Fig. 8: replanned at 2, 10 and 16 s"
+    scaled = plot_before_after({"config": log}, None, "Fig. 8", time_scale=4.0)
+    title = scaled.get_suptitle()
+    assert "times and velocities / 4, positions / 16" in title
+    assert scaled.get_axes()[-1].get_xlabel().startswith("time of the scaled run (s)")
