@@ -84,7 +84,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(TOML syntax; repeatable)",
     )
     parser.add_argument("--link", metavar="PATH", help="with --pty: a symlink PATH -> /dev/pts/N")
-    parser.add_argument("--capture", metavar="FILE", help="record the board -> PC bytes")
+    parser.add_argument(
+        "--capture",
+        metavar="FILE",
+        help="record the board -> PC bytes with their times (sim/capture.py; decode, plot, "
+        "replay read it)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -130,7 +135,10 @@ def main(args: argparse.Namespace) -> int:
     capture = None
     try:
         if args.capture:
-            capture = open(args.capture, "wb")  # noqa: SIM115
+            from sim.capture import TimestampedCapture
+
+            # each burst with its wall time: replay plays it back at this pace
+            capture = TimestampedCapture(open(args.capture, "wb"))  # noqa: SIM115
     except OSError as exc:
         endpoint.close()
         raise CommandError(f"cannot write {args.capture!r}: {exc.strerror}") from exc

@@ -168,3 +168,24 @@ def test_bad_input_is_one_line_and_status_2(capture, argv, message, capsys):
     assert cli.main(["replay", *argv]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0], err
+
+
+def test_serve_captures_with_timestamps(tmp_path):
+    from sim.capture import is_timestamped, read_chunks
+
+    cap = tmp_path / "serve.cap"
+    env = {"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"}
+    done = subprocess.run(
+        [sys.executable, "-m", "sim.cli", "serve", "--tcp", "0", "--speed", "4",
+         "--duration", "0.4", "--capture", str(cap)],
+        capture_output=True, text=True, env=env, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert is_timestamped(cap)
+    with open(cap, "rb") as f:
+        chunks = list(read_chunks(f))
+    times = [t for t, _ in chunks]
+    assert len(chunks) > 1 and times == sorted(times)
+    decoder = Decoder()
+    ticks = [m.tick for _, data in chunks for m in decoder.feed(data) if isinstance(m, Telemetry)]
+    assert len(ticks) > 50 and ticks == sorted(ticks)
