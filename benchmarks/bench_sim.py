@@ -192,8 +192,10 @@ print(json.dumps({{"import_s": t1 - t0, "kernels_s": t2 - t1, "run_s": t3 - t2}}
 """
 
 
-def _python(code: str) -> dict[str, float]:
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+def _python(code: str, env: dict[str, str] | None = None) -> dict[str, float]:
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
+    )
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -241,6 +243,14 @@ def paired(trees: dict[str, str], rounds: int, batch: int, batch_s: float) -> No
 
 
 def fresh_process(tree: str, repeat: int) -> None:
+    with tempfile.TemporaryDirectory() as cache:
+        # An empty numba cache: what the first run after an install does.
+        cold = _python(_FRESH.format(tree=tree), env=dict(os.environ, NUMBA_CACHE_DIR=cache))
+    print(
+        f"    first run after an install (empty numba cache): import {cold['import_s']:.2f} s, "
+        f"compiling and caching the kernels {cold['kernels_s']:.1f} s, run + decode "
+        f"{cold['run_s']:.3f} s ({_load()})"
+    )
     runs = [_python(_FRESH.format(tree=tree)) for _ in range(repeat)]
     med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
     print(

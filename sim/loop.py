@@ -737,8 +737,8 @@ def compile_notice(stream: Any = None) -> Iterator[None]:
 
     def say() -> None:
         stream.write(
-            "compiling the simulation's kernels (once after an install, about 10-30 s; "
-            "cached in __pycache__)...\n"
+            "loading the simulation's compiled kernels (the first time after an install or "
+            "a change they are compiled: 10-60 s, then cached)...\n"
         )
         stream.flush()
 
