@@ -61,6 +61,15 @@ def fig8_experiment(duration_s: float) -> Experiment:
     return Experiment(bench=bench, duration_s=duration_s, commands=cmds)
 
 
+def _open_and_move(sim: Simulation, exp: Experiment) -> None:
+    """The scripted PC's first frames: a Hello opening session 1, then the first move."""
+    from serial_protocol import frame
+    from serial_protocol.messages import Hello
+
+    sim.pc_write(frame.encode(Hello(1, session=1), 0))
+    sim.pc_write(frame.encode(exp.commands[0].message(2, 1), 1))
+
+
 def _one_input(u):
     """``(duty, enable)`` of member 0 as a float and a bool."""
     duty, enable = u
@@ -98,9 +107,8 @@ def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
         sim = Simulation(exp.bench, seed=0, record_inputs=True)
         if name == "ivp":
             sim.plant = SolveIvpPlant(exp.bench.plant, sim.h_s)
-        from serial_protocol import frame
 
-        sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+        _open_and_move(sim, exp)
         chunks = []
         for _ in range(n // 50):
             t0 = time.perf_counter()
@@ -122,9 +130,8 @@ def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
     """Plant alone: replay a recorded duty sequence through Plant (N = 1) and solve_ivp."""
     n = round(seconds / exp.bench.dt_s)
     sim = Simulation(exp.bench, record_inputs=True)
-    from serial_protocol import frame
 
-    sim.pc_write(frame.encode(exp.commands[0].message(1), 0))
+    _open_and_move(sim, exp)
     sim.step(n)
     duty, enable = sim.inputs()
     from sim.plant import Plant
