@@ -20,7 +20,7 @@ from firmware_model.params import (
 from firmware_model.units import AXIS_DEG_PER_COUNT
 
 
-class ScalarLaw:
+class OneAxis:
     """One axis of ``Law`` with scalar access, and setters for the state the tests poke."""
 
     arithmetic = "float"
@@ -101,7 +101,7 @@ class ScalarLaw:
         self.law.current_ref_a = v
 
 
-class ScalarFixedLaw(ScalarLaw):
+class OneAxisFixed(OneAxis):
     arithmetic = "fixed"
 
 
@@ -109,7 +109,7 @@ def _counts(true_counts: float) -> int:
     return math.floor(true_counts) % 16384
 
 
-@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
+@pytest.mark.parametrize("law_class", [OneAxis, OneAxisFixed])
 @pytest.mark.parametrize("counts_per_tick", [37.3, -512.77, 5000.3, 7900.9])
 def test_observer_converges_to_a_constant_speed_and_raw_difference_is_quantised(
     counts_per_tick, law_class
@@ -140,7 +140,7 @@ def test_observer_converges_to_a_constant_speed_and_raw_difference_is_quantised(
     assert abs(law.vel_raw_dps - true_dps) <= step
 
 
-@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
+@pytest.mark.parametrize("law_class", [OneAxis, OneAxisFixed])
 def test_unwrap_beyond_half_a_revolution_per_tick(law_class):
     # 9000 counts per tick is more than half a revolution: a difference of readings would
     # alias; unwrapping around the observer's prediction does not.
@@ -157,7 +157,7 @@ def test_unwrap_beyond_half_a_revolution_per_tick(law_class):
 def test_observer_uses_the_current_to_remove_acceleration_lag():
     params = FirmwareParams()
     c = params.estimator.accel_per_amp_dps2  # axis deg/s^2 per A
-    with_model, without = ScalarLaw(params), ScalarLaw(params)
+    with_model, without = OneAxis(params), OneAxis(params)
     without.law.counts_tick2_per_a = 0.0
     without.law._derive()
     for law in (with_model, without):
@@ -190,7 +190,7 @@ def _drive(law, n_ticks, *, adc, enabled=True):
 
 def test_duty_is_on_the_timer_grid_clamped_and_delayed():
     params = FirmwareParams(current=CurrentLoopGains(pwm_arr=3600))
-    law = ScalarLaw(params)
+    law = OneAxis(params)
     law.reset(0)
     law.estimate(0)
     duties = _drive(law, 50, adc=0)
@@ -201,7 +201,7 @@ def test_duty_is_on_the_timer_grid_clamped_and_delayed():
 
 
 def test_current_sign_is_reconstructed_from_the_applied_duty():
-    law = ScalarLaw(FirmwareParams())
+    law = OneAxis(FirmwareParams())
     law.reset(0)
     law.estimate(0)
     law.duty = -0.3  # the bridge drives negative: the IS pin senses |i|
@@ -213,7 +213,7 @@ def test_current_sign_is_reconstructed_from_the_applied_duty():
 def test_current_integrator_does_not_wind_up_when_the_sense_is_blind():
     # Regenerative braking: current against the duty, IS pin reads 0; the loop must trust
     # the model instead of integrating the unseen error.
-    law = ScalarLaw(FirmwareParams())
+    law = OneAxis(FirmwareParams())
     law.reset(0)
     law.estimate(0)
     law.current_ref_a = -3.0
@@ -245,7 +245,7 @@ def test_regenerative_clamp_bounds_the_unseen_current_and_back_calculates(direct
     # 3 V further into braking than the model allows (-7.5 A predicted).
     params = FirmwareParams()
     cur = params.current
-    law = ScalarLaw(params)
+    law = OneAxis(params)
     law.reset(0)
     _cruise(law, direction * 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
     emf = cur.back_emf_v_per_dps * law.vel_dps
@@ -272,7 +272,7 @@ def test_regenerative_clamp_leaves_a_current_in_the_duty_direction_to_the_loop()
     # At 500 deg/s a negative duty drives a negative current through the other half-bridge's
     # high side, which the IS pin senses: no clamp there, the PI corrects what it sees.
     params = FirmwareParams()
-    law = ScalarLaw(params)
+    law = OneAxis(params)
     law.reset(0)
     _cruise(law, 500.0 / (AXIS_DEG_PER_COUNT * 500.0))
     law.i_i = -20.0
@@ -285,7 +285,7 @@ def test_regenerative_clamp_leaves_a_current_in_the_duty_direction_to_the_loop()
 
 
 def test_integrators_stay_inside_the_clamps():
-    law = ScalarLaw(FirmwareParams())
+    law = OneAxis(FirmwareParams())
     law.reset(0)
     law.estimate(0)
     for _ in range(2000):
@@ -297,7 +297,7 @@ def test_integrators_stay_inside_the_clamps():
 
 
 def test_disabled_bridge_gives_zero_duty_and_resets():
-    law = ScalarLaw(FirmwareParams())
+    law = OneAxis(FirmwareParams())
     law.reset(0)
     law.estimate(0)
     _drive(law, 10, adc=50)
@@ -358,7 +358,7 @@ def test_batch_boot_readings_unwrap_around_member_0():
     np.testing.assert_array_equal(law.count, [3, -1, 8, -4])
 
 
-@pytest.mark.parametrize("law_class", [ScalarLaw, ScalarFixedLaw])
+@pytest.mark.parametrize("law_class", [OneAxis, OneAxisFixed])
 def test_resync_restarts_the_observer_on_the_reading(law_class):
     law = law_class(FirmwareParams())
     law.reset(0)
