@@ -24,7 +24,7 @@ import numpy as np
 
 from sim.params import PlantParams
 
-__all__ = ["belt_torque_nm", "gap_rad", "load_factor", "resonance_hz"]
+__all__ = ["belt_torque_nm", "gap_rad", "load_factor", "resonance_hz", "stuck_at_rest"]
 
 
 def gap_rad(params: PlantParams) -> float:
@@ -60,3 +60,15 @@ def resonance_hz(params: PlantParams) -> float:
     k = params.belt.stiffness_nm_rad
     w2 = k * (1.0 / params.platter.j_kgm2 + 1.0 / (n * n * eta * params.motor.j_kgm2))
     return math.sqrt(w2) / (2.0 * math.pi)
+
+
+def stuck_at_rest(motor_torque_nm: float, belt_torque_nm: float, params: PlantParams) -> bool:
+    """Whether a motor at rest stays there: its torque lies between the load it meets
+    turning with the belt torque (``tau / (N eta)``, driving) and against it (``eta tau /
+    N``, driven). There the gearbox's load-dependent friction holds it (Filippov's sliding
+    motion on the power-flow switch of ``load_factor``)."""
+    if belt_torque_nm == 0.0:
+        return False
+    n, eta = params.total_ratio, params.gearbox.efficiency
+    drive, back = belt_torque_nm / (n * eta), belt_torque_nm * eta / n
+    return min(drive, back) <= motor_torque_nm <= max(drive, back)

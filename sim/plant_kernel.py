@@ -11,8 +11,8 @@ Tables (``M`` modes loaded so far, ``L = event_levels``, ``G`` parameter sets):
 - ``slots`` ``(N_MODES,)`` int64 (``(G, N_MODES)`` for ``step_members``): row of a mode
   in the tables, -1 if not loaded;
 - ``phis`` ``(M, L + 1, 5, 7)``: ``Phi`` of the mode over ``h / 2**level``;
-- ``rates`` ``(M, 2, 7)``: the rows of ``[A | B | e]`` of the motor and platter
-  accelerations (the excursion gate's Hermite slopes);
+- ``rates`` ``(M, 3, 7)``: the rows of ``[A | B | e]`` of the motor and platter
+  accelerations and of di/dt (the excursion gate's Hermite slopes);
 - ``consts`` ``(N_CONSTS,)`` (``(G, N_CONSTS)``): the coefficients, at the indices named
   below.
 """
@@ -34,9 +34,12 @@ _B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6
 # consts[...] indices.
 (
     _WBM, _WBP, _HALF, _K, _C, _N, _VS, _R, _KE, _ICL, _VD2, _INV_N, _KT, _TCM, _BM, _G_MAX,
-    _JM, _TCP, _BP, _JP, _H_S,
-) = range(21)  # fmt: skip
-N_CONSTS = 21
+    _JM, _TCP, _BP, _JP, _H_S, _ETA,
+) = range(22)  # fmt: skip
+N_CONSTS = 22
+# Mechanical modes per bridge mode (sim.plant.MECH_MODES) and the stuck power-flow mode.
+_MECH = 81
+_F_STUCK = 2
 
 
 def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
@@ -48,6 +51,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     values = [float(getattr(co, name)) for name in names]
     values += [float(g_max), float(co.jm), float(co.tcp), float(co.bp), float(co.jp)]
     values.append(float(h_s))
+    values.append(float(co.eta))
     return np.array(values)
 
 
@@ -69,6 +73,8 @@ def key(i, w, tw, wp, duty, enable, kc):
         contact = 1
         tb = 0.0
     flow = 1 if tb * w < 0 else 0
+    if w == 0.0 and tb != 0.0:
+        flow = _flow_at_rest(kc[_KT] * i, tb, n, kc[_ETA])
     if enable:
         bridge = _B_ON
         if i >= icl and vs * duty - r * i - ke * w > 0:
@@ -82,7 +88,34 @@ def key(i, w, tw, wp, duty, enable, kc):
     else:
         emf = ke * w
         bridge = _B_DIODE_NEG if emf > vd2 else (_B_DIODE_POS if emf < -vd2 else _B_OPEN)
-    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 2 + flow
+    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 3 + flow
+
+
+@numba.njit(cache=True)
+def _belt_torque(tw, rate, kc):
+    """Belt torque on the platter (N*m) at twist ``tw`` and twist rate ``rate``."""
+    half = kc[_HALF]
+    if tw > half:
+        return kc[_K] * (tw - half) + kc[_C] * rate
+    if tw < -half:
+        return kc[_K] * (tw + half) + kc[_C] * rate
+    return 0.0
+
+
+@numba.njit(cache=True)
+def _flow_at_rest(torque_nm, tb, n, eta):
+    """Power-flow mode of a motor at rest (w_m = 0) with belt torque ``tb`` != 0.
+
+    Turning with the load (``tb w > 0``) the motor meets ``tb / (N eta)``, against it only
+    ``eta tb / N``: a motor torque between the two turns it neither way (stuck, 2); above
+    or below, it leaves in the direction of the net torque, driving (0) or driven (1)."""
+    drive = tb / (n * eta)
+    back = tb * eta / n
+    lo = back if tb > 0 else drive
+    hi = drive if tb > 0 else back
+    if lo <= torque_nm <= hi:
+        return 2
+    return 0 if (torque_nm > hi) == (tb > 0) else 1
 
 
 @numba.njit(cache=True)
@@ -135,14 +168,15 @@ def hermite_leaves(p0, p1, m0, m1, edge):
 
 
 @numba.njit(cache=True)
-def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, row, h, kc):
+def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
-    the backlash gap). Each boundary variable (motor speed, platter speed, twist) is
-    interpolated by the cubic Hermite through its values and rates at both ends
-    (``rates[row]``: the mode's rows of the motor and platter accelerations); an interior
-    extremum
-    on the other side of a boundary calls for halving.
+    the backlash gap, the belt torque changing sign and back in contact, which flips the
+    gearbox's power flow, a current peaking past I_CL). Each boundary variable (motor speed,
+    platter speed, twist, belt torque, current) is interpolated by the cubic Hermite through
+    its values and rates at both ends (``rates[row]``: the mode's rows of the motor and
+    platter accelerations and of di/dt); an interior extremum on the other side of a
+    boundary calls for halving.
 
     A speed whose ends are farther from its band than ``h`` times a bound on its
     acceleration cannot reach the band and is not interpolated: the motor's bound uses the
@@ -150,7 +184,7 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, row, h, kc):
     the belt torque at the ends plus its friction."""
     inv_n, half, k, c, vs, ke, r = kc[_INV_N], kc[_HALF], kc[_K], kc[_C], kc[_VS], kc[_KE], kc[_R]
     kt, tcm, bm, g_max, jm, wbm = kc[_KT], kc[_TCM], kc[_BM], kc[_G_MAX], kc[_JM], kc[_WBM]
-    tcp, bp, jp, wbp = kc[_TCP], kc[_BP], kc[_JP], kc[_WBP]
+    tcp, bp, jp, wbp, icl = kc[_TCP], kc[_BP], kc[_JP], kc[_WBP], kc[_ICL]
     r0 = w0 * inv_n - p0
     r1 = w1 * inv_n - p1
     ar0, ar1 = abs(r0), abs(r1)
@@ -162,6 +196,38 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, row, h, kc):
         hermite_leaves(t0, t1, r0 * h, r1 * h, half)
     ):
         return True
+    if bridge_on:
+        # The chip's current limitation: a current that rises past I_CL and falls back
+        # within the step (the back-EMF catching up) was held at I_CL meanwhile.
+        c0, c2, c3, c4, c5, c6 = (
+            rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
+            rates[row, 2, 5], rates[row, 2, 6],
+        )  # fmt: skip
+        di0 = c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6
+        di1 = c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6
+        if hermite_leaves(i0, i1, di0 * h, di1 * h, icl):
+            return True
+    # Scalar loads, no views (a view costs reference counting in numba).
+    v0, v2, v3, v4, v6 = (
+        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
+    )  # fmt: skip
+    q0, q2, q3, q4, q6 = (
+        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
+    )  # fmt: skip
+    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
+    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
+    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
+    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
+    if d0 > 0.0 and d1 > 0.0:
+        # In contact at both ends (same side): the belt torque's sign sets the power flow
+        # through the gearbox; a sign change and back inside the step is a hidden switch.
+        sh = half if t0 > 0.0 else -half
+        tb0 = k * (t0 - sh) + c * r0
+        tb1 = k * (t1 - sh) + c * r1
+        tbd0 = k * r0 + c * (wd0 * inv_n - pd0)
+        tbd1 = k * r1 + c * (wd1 * inv_n - pd1)
+        if hermite_leaves(tb0, tb1, tbd0 * h, tbd1 * h, 0.0):
+            return True
     aw0, aw1 = abs(w0), abs(w1)
     wmax = aw0 if aw0 > aw1 else aw1
     tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
@@ -179,24 +245,6 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, rates, row, h, kc):
     check_p = ap0 <= gate_p or ap1 <= gate_p
     if not (check_m or check_p):
         return False
-    v0, v2, v3, v4, v6 = (
-        rates[row, 0, 0],
-        rates[row, 0, 2],
-        rates[row, 0, 3],
-        rates[row, 0, 4],
-        rates[row, 0, 6],
-    )
-    q0, q2, q3, q4, q6 = (
-        rates[row, 1, 0],
-        rates[row, 1, 2],
-        rates[row, 1, 3],
-        rates[row, 1, 4],
-        rates[row, 1, 6],
-    )
-    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
-    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
-    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
-    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
     return (check_m and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)) or (
         check_p and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
     )
@@ -280,21 +328,33 @@ def step(
         )  # fmt: skip
         key_end = key(ni, nw, ntw, nwp, d, en, kc)
         accept = key_end == k
+        bridge_on = k // _MECH == _B_ON
+        if accept and bridge_on and -icl <= i <= icl and (ni > icl or ni < -icl):
+            # Past I_CL at the end, but the drive has turned back (so the end's mode is
+            # "on" again): the limitation held the current at I_CL in between.
+            accept = False
         if accept and level < levels and budget > 0:
             h = h_s / (1 << level)
-            accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, rates, row, h, kc)
+            accept = not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h, kc)
         if not accept and (level >= levels or budget <= 0):
             # Located to h / 2**levels: accept (a diode current stops at zero, a current that
             # reached the bridge's limitation is held at I_CL).
             n_events += 1
-            bridge = k // 54
+            bridge = k // _MECH
             if (bridge == _B_DIODE_POS and ni < 0) or (bridge == _B_DIODE_NEG and ni > 0):
                 ni = 0.0
-            limit = key_end // 54
-            if limit == _B_LIMIT_POS and ni > icl:
+            limit = key_end // _MECH
+            if ni > icl and (limit == _B_LIMIT_POS or (bridge_on and i <= icl)):
                 ni = icl
-            elif limit == _B_LIMIT_NEG and ni < -icl:
+            elif ni < -icl and (limit == _B_LIMIT_NEG or (bridge_on and i >= -icl)):
                 ni = -icl
+            if (w > 0.0 and nw <= 0.0) or (w < 0.0 and nw >= 0.0):
+                # The motor speed passed zero: if the gearbox holds it there (the power-flow
+                # switch's stick), it stays at rest until the torque leaves the band.
+                tb = _belt_torque(ntw, nw * kc[_INV_N] - nwp, kc)
+                if tb != 0.0 and _flow_at_rest(kc[_KT] * ni, tb, kc[_N], kc[_ETA]) == _F_STUCK:
+                    nw = 0.0
+            key_end = key(ni, nw, ntw, nwp, d, en, kc)
             accept = True
         if accept:
             i, p, w, tw, wp = ni, np_, nw, ntw, nwp
@@ -348,7 +408,7 @@ def step_members(
         out_x[j, 2] = r[2]
         out_x[j, 3] = r[3]
         out_x[j, 4] = r[4]
-        out_keys[j] = r[5] % 54
+        out_keys[j] = r[5] % _MECH
         events += r[6]
     return x.shape[0], events, 0, -1
 
@@ -365,5 +425,5 @@ def warm_up(event_levels: int = 20) -> None:
     step_members(
         x, np.zeros(1), np.ones(1, dtype=bool), ints, True, 0, ints,
         np.full((1, 1), -1, dtype=np.int64), np.empty((0, event_levels + 1, 5, 7)),
-        np.empty((0, 2, 7)), kc, event_levels, 1, np.empty((1, 5)), ints,
+        np.empty((0, 3, 7)), kc, event_levels, 1, np.empty((1, 5)), ints,
     )  # fmt: skip

@@ -17,6 +17,7 @@ from sim.plant import (
     B_DIODE_POS,
     B_LIMIT_POS,
     B_OPEN,
+    MECH_MODES,
     N_MODES,
     Coefficients,
     Plant,
@@ -164,7 +165,7 @@ def test_bridge_current_limitation_pins_current():
     xs = _run(plant, [0.0] * 5, [1.0] * 50)
     assert np.max(xs[:, 0]) <= 10.0 + 1e-9
     assert np.max(xs[:, 0]) > 9.99
-    assert plant.key(list(xs[0]), 1.0, True) // 54 == B_LIMIT_POS
+    assert plant.key(list(xs[0]), 1.0, True) // MECH_MODES == B_LIMIT_POS
     # The oracle agrees.
     ref = _oracle(params, [0.0] * 5, [1.0] * 50)
     np.testing.assert_allclose(xs[:, 2], ref[:, 2], rtol=1e-6)
@@ -175,11 +176,11 @@ def test_disabled_bridge_current_decays_to_zero_and_stays():
     plant = ScalarPlant(params, DT_S)
     x = _run(plant, [0.0] * 5, [0.8] * 200)[-1].tolist()
     assert x[0] > 0.1
-    assert plant.key(x, 0.0, False) // 54 == B_DIODE_POS
+    assert plant.key(x, 0.0, False) // MECH_MODES == B_DIODE_POS
     xs = _run(plant, x, [0.0] * 50, enable=False)
     assert np.all(xs[:, 0] >= 0.0)
     assert xs[-1][0] == 0.0
-    assert plant.key(list(xs[-1]), 0.0, False) // 54 == B_OPEN
+    assert plant.key(list(xs[-1]), 0.0, False) // MECH_MODES == B_OPEN
     assert xs[-1][2] < x[2]  # coasting down
 
 
@@ -222,7 +223,7 @@ def test_derivative_is_batched_and_pure():
 
 def test_diode_mode_key_when_current_positive():
     plant = ScalarPlant(PlantParams(), DT_S)
-    assert plant.key([1.0, 0.0, 0.0, 0.0, 0.0], 0.0, False) // 54 == B_DIODE_POS
+    assert plant.key([1.0, 0.0, 0.0, 0.0, 0.0], 0.0, False) // MECH_MODES == B_DIODE_POS
 
 
 def test_hidden_excursion_into_a_band_is_detected():

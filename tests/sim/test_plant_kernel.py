@@ -20,7 +20,16 @@ from hypothesis import strategies as st
 
 from sim import plant_kernel
 from sim.params import PlantParams
-from sim.plant import B_DIODE_NEG, B_DIODE_POS, B_LIMIT_NEG, B_LIMIT_POS, N_X, Plant
+from sim.plant import (
+    B_DIODE_NEG,
+    B_DIODE_POS,
+    B_LIMIT_NEG,
+    B_LIMIT_POS,
+    B_ON,
+    MECH_MODES,
+    N_X,
+    Plant,
+)  # fmt: skip
 
 DT_S = 0.002
 
@@ -54,34 +63,52 @@ class _Recursion:
         key_end = p.key(xn, d, en)
         self.end_key = key_end
         h = p.h_s / (1 << level)
-        if key_end == key and (
-            level >= p.event_levels or self.splits <= 0 or not self._excursion(x, xn, key, h)
+        icl = p.co.icl
+        on = key // MECH_MODES == B_ON
+        crossed = on and -icl <= x[0] <= icl and abs(xn[0]) > icl
+        if (
+            key_end == key
+            and not crossed
+            and (
+                level >= p.event_levels or self.splits <= 0 or not self._excursion(x, xn, d, key, h)
+            )
         ):
             return xn
         if level >= p.event_levels or self.splits <= 0:
             self.n_events += 1
-            bridge = key // 54
+            bridge = key // MECH_MODES
             if (bridge == B_DIODE_POS and xn[0] < 0) or (bridge == B_DIODE_NEG and xn[0] > 0):
                 xn[0] = 0.0
-            limit = key_end // 54
-            if limit == B_LIMIT_POS and xn[0] > p.co.icl:
-                xn[0] = p.co.icl
-            elif limit == B_LIMIT_NEG and xn[0] < -p.co.icl:
-                xn[0] = -p.co.icl
+            limit = key_end // MECH_MODES
+            if xn[0] > icl and (limit == B_LIMIT_POS or (on and x[0] <= icl)):
+                xn[0] = icl
+            elif xn[0] < -icl and (limit == B_LIMIT_NEG or (on and x[0] >= -icl)):
+                xn[0] = -icl
+            if (x[2] > 0 and xn[2] <= 0) or (x[2] < 0 and xn[2] >= 0):
+                kc = p._consts[0]
+                tb = plant_kernel._belt_torque(xn[3], xn[2] / p.co.n - xn[4], kc)
+                if (
+                    tb != 0.0
+                    and plant_kernel._flow_at_rest(p.co.kt * xn[0], tb, p.co.n, p.co.eta)
+                    == plant_kernel._F_STUCK
+                ):
+                    xn[2] = 0.0
+            self.end_key = p.key(xn, d, en)
             return xn
         self.splits -= 1
         half = self._advance(x, d, en, key, level + 1)
         return self._advance(half, d, en, p.key(half, d, en), level + 1)
 
-    def _excursion(self, x, xn, key, h):
+    def _excursion(self, x, xn, d, key, h):
         p = self.plant
         if p._slots[0, key] < 0:
             p._load(0, key)
         row = p._slots[0, key]
         i0, _, w0, t0, p0 = x
         i1, _, w1, t1, p1 = xn
+        on = key // MECH_MODES == B_ON
         return plant_kernel._excursion(
-            i0, w0, t0, p0, i1, w1, t1, p1, p._rates, row, h, p._consts[0]
+            i0, w0, t0, p0, i1, w1, t1, p1, d, on, p._rates, row, h, p._consts[0]
         )
 
 
@@ -117,7 +144,7 @@ def test_compiled_step_is_the_recursion_bit_for_bit(levels):
         want = oracle.step(x.tolist(), d, en)
         assert list(got) == want, (x.tolist(), d, en)
         assert plant.n_events - before == oracle.n_events
-        assert plant._last_mech[0] == oracle.end_key % 54
+        assert plant._last_mech[0] == oracle.end_key % MECH_MODES
         events += oracle.n_events
     if levels:
         assert events > 10  # the located-switch branch ran
