@@ -37,13 +37,18 @@ def steady_speed_rad_s(params: PlantParams, duty: float) -> float:
     """Steady motor speed of the whole drive train at a constant positive duty (rad/s).
 
     Belt in contact, platter friction reflected through the gearbox with its efficiency
-    (motor driving), both friction laws saturated. Used by the analytic tests and docs.
+    (motor driving), the gearbox's no-load drag at the motor, both friction laws saturated.
+    Used by the analytic tests and docs.
     """
     m, p = params.motor, params.platter
     n = params.total_ratio
     eta = params.gearbox.efficiency
     r = m.r_ohm + params.bridge.r_on_path_ohm
     v = duty * params.supply.voltage_v
-    load0 = m.coulomb_nm + p.coulomb_nm / (n * eta)
-    slope = m.kt_nm_a * m.ke_v_s_rad / r + m.viscous_nm_s_rad + p.viscous_nm_s_rad / (n * n * eta)
+    load0 = params.motor_coulomb_nm + p.coulomb_nm / (n * eta)
+    slope = (
+        m.kt_nm_a * m.ke_v_s_rad / r
+        + params.motor_viscous_nm_s_rad
+        + p.viscous_nm_s_rad / (n * n * eta)
+    )
     return (m.kt_nm_a * v / r - load0) / slope

@@ -170,10 +170,16 @@ class GearboxParams:
     ratio: float = 80.0
     efficiency: float = 0.8
     backlash_deg: float = 0.5
+    # No-load drag of the gearbox (seals, grease churning, the planet stages turning with
+    # no load), referred to the motor shaft: Coulomb (with the motor's friction band) and
+    # viscous. Zero (the defaults) turns it off. With ``efficiency`` (a loss proportional to
+    # the transmitted torque) it makes the efficiency load-dependent: low at light load.
+    drag_nm: float = 0.0
+    drag_viscous_nm_s_rad: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "ratio")
-        _non_negative(self, "backlash_deg")
+        _non_negative(self, "backlash_deg", "drag_nm", "drag_viscous_nm_s_rad")
         e = np.asarray(self.efficiency)
         _check(
             self, "efficiency", _finite(e) and bool(np.all((e > 0) & (e <= 1))), "must be in (0, 1]"
@@ -224,6 +230,13 @@ class EncoderParams:
     latency_s: float = 100e-6
     noise_rms_lsb: float = 0.0
     offset_counts: float = 0.0
+    # Integral non-linearity as harmonics of the motor angle (motor degrees, phase degrees):
+    # once per turn (magnet eccentricity) and twice per turn (field ellipticity). Zero
+    # amplitudes (the defaults) turn it off.
+    inl_h1_deg: float = 0.0
+    inl_h1_phase_deg: float = 0.0
+    inl_h2_deg: float = 0.0
+    inl_h2_phase_deg: float = 0.0
 
     def __post_init__(self) -> None:
         _check(
@@ -233,6 +246,14 @@ class EncoderParams:
             "must be an integer in [8, 20]",
         )
         _non_negative(self, "latency_s", "noise_rms_lsb", "offset_counts")
+        _non_negative(self, "inl_h1_deg", "inl_h2_deg")
+        for name in ("inl_h1_deg", "inl_h2_deg"):
+            _check(
+                self, name, bool(np.all(np.asarray(getattr(self, name)) <= 5.0)),
+                "must be <= 5 deg (the AS5048's error is well under a degree)",
+            )  # fmt: skip
+        for name in ("inl_h1_phase_deg", "inl_h2_phase_deg"):
+            _check(self, name, _finite(getattr(self, name)), "must be finite")
         _check(
             self, "latency_s", bool(np.all(np.asarray(self.latency_s) < 0.01)), "must be < 0.01 s"
         )
@@ -332,6 +353,17 @@ class PlantParams:
     belt: BeltParams = field(default_factory=BeltParams)
     platter: PlatterParams = field(default_factory=PlatterParams)
     encoder: EncoderParams = field(default_factory=EncoderParams)
+
+    @property
+    def motor_coulomb_nm(self) -> Any:
+        """Coulomb friction at the motor shaft (N*m): the motor's brushes and bearings plus
+        the gearbox's no-load drag."""
+        return self.motor.coulomb_nm + self.gearbox.drag_nm
+
+    @property
+    def motor_viscous_nm_s_rad(self) -> Any:
+        """Viscous friction at the motor shaft (N*m*s/rad): motor plus gearbox drag."""
+        return self.motor.viscous_nm_s_rad + self.gearbox.drag_viscous_nm_s_rad
 
     @property
     def total_ratio(self) -> float:

@@ -101,8 +101,8 @@ class Coefficients:
             kt=f(p.motor.kt_nm_a),
             ke=f(p.motor.ke_v_s_rad),
             jm=f(p.motor.j_kgm2),
-            bm=f(p.motor.viscous_nm_s_rad),
-            tcm=f(p.motor.coulomb_nm),
+            bm=f(p.motor_viscous_nm_s_rad),
+            tcm=f(p.motor_coulomb_nm),
             wbm=f(p.motor.coulomb_band_rad_s),
             jp=f(p.platter.j_kgm2),
             bp=f(p.platter.viscous_nm_s_rad),
@@ -312,7 +312,9 @@ def derivative(
     dx[..., POS] = w
     dx[..., VEL] = (
         m.kt_nm_a * i
-        - friction_torque_nm(w, m.coulomb_nm, m.coulomb_band_rad_s, m.viscous_nm_s_rad)
+        - friction_torque_nm(
+            w, params.motor_coulomb_nm, m.coulomb_band_rad_s, params.motor_viscous_nm_s_rad
+        )
         - g * tb
     ) / m.j_kgm2
     dx[..., TWIST] = w / n - wp
@@ -356,7 +358,8 @@ def _derivative_one(
     eta = params.gearbox.efficiency
     side = w if motor_dir is None else motor_dir
     g = eta / n if tb * side < 0 else 1.0 / (n * eta)
-    fm = m.coulomb_nm * max(-1.0, min(1.0, w / m.coulomb_band_rad_s)) + m.viscous_nm_s_rad * w
+    fm = params.motor_coulomb_nm * max(-1.0, min(1.0, w / m.coulomb_band_rad_s))
+    fm += params.motor_viscous_nm_s_rad * w
     fp = pl.coulomb_nm * max(-1.0, min(1.0, wp / pl.coulomb_band_rad_s))
     fp += pl.viscous_nm_s_rad * wp
     dw = 0.0 if motor_dir == 0 else (m.kt_nm_a * i - fm - g * tb) / m.j_kgm2

@@ -109,7 +109,7 @@ def run_ticks(
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
     keys, group, slots, phis, rates, consts, levels, budget = plant
     xlog, signals, voltage = logs
-    latency, offset, enc_noise, counts_per_rad, counts_per_rev = enc_params
+    latency, offset, enc_noise, counts_per_rad, counts_per_rev, enc_inl = enc_params
     a_per_lsb, adc_noise = adc_params
     arr, supply_v = bridge_params
     n = x0.shape[0]
@@ -132,7 +132,9 @@ def run_ticks(
                 ctx[CX_ENC_ROW] += 1
             if keep:
                 xlog[k] = x
-            _read(x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts)
+            _read(
+                x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
+            )
             law_steps.estimate(counts, P, C, S, G, K)
             stage = SERVO
             silence = flags[F_SILENCE_AT] >= 0 and fi[FI_TICK] >= flags[F_SILENCE_AT]

@@ -94,7 +94,7 @@ class LinearPlant:
         eff = _scalar(p.gearbox.efficiency, "efficiency")
         j_eq = _scalar(p.motor.j_kgm2, "j_kgm2") + _scalar(p.platter.j_kgm2, "j_kgm2") / n2 / eff
         b_eq = (
-            _scalar(p.motor.viscous_nm_s_rad, "viscous_nm_s_rad")
+            _scalar(p.motor_viscous_nm_s_rad, "viscous_nm_s_rad")
             + _scalar(p.platter.viscous_nm_s_rad, "viscous_nm_s_rad") / n2 / eff
         )
         return cls(

@@ -99,3 +99,62 @@ def test_batch_read_with_parameters_per_member_matches_the_formula():
     for k, counts in enumerate((first, second)):
         c = (x[:, 1] - x[:, 2] * latency) * (16384 / (2 * math.pi)) + offset + noise * draws[k]
         np.testing.assert_array_equal(counts, np.floor(c).astype(np.int64) % 16384)
+
+
+def test_inl_adds_the_configured_harmonics_of_the_motor_angle():
+    a1, p1, a2, p2 = 0.5, 20.0, 0.1, -45.0  # motor degrees, phase degrees
+    enc = _enc(inl_h1_deg=a1, inl_h1_phase_deg=p1, inl_h2_deg=a2, inl_h2_phase_deg=p2)
+    theta = np.random.default_rng(3).uniform(0.0, 2 * math.pi, 20000)
+    x = np.zeros((theta.size, 5))
+    x[:, 1] = theta
+    counts = enc.read(x)
+    lsb = 16384 / 360.0
+    inl = a1 * lsb * np.sin(theta + math.radians(p1)) + a2 * lsb * np.sin(
+        2 * theta + math.radians(p2)
+    )
+    expected = np.floor(theta / COUNT_RAD + inl).astype(np.int64) % 16384
+    np.testing.assert_array_equal(counts, expected)
+    # Least squares on the reading's error recovers amplitudes and phases (the truncation
+    # adds a -0.5 LSB mean and a sawtooth uncorrelated with the harmonics).
+    err = (counts - theta / COUNT_RAD + 8192) % 16384 - 8192
+    basis = np.stack(
+        [np.ones_like(theta), np.sin(theta), np.cos(theta), np.sin(2 * theta), np.cos(2 * theta)]
+    ).T
+    coef = np.linalg.lstsq(basis, err, rcond=None)[0]
+    assert coef[0] == pytest.approx(-0.5, abs=0.01)
+    assert math.hypot(coef[1], coef[2]) / lsb == pytest.approx(a1, abs=0.01 / lsb)
+    assert math.degrees(math.atan2(coef[2], coef[1])) == pytest.approx(p1, abs=0.05)
+    assert math.hypot(coef[3], coef[4]) / lsb == pytest.approx(a2, abs=0.01 / lsb)
+    assert math.degrees(math.atan2(coef[4], coef[3])) == pytest.approx(p2, abs=0.3)
+
+
+def test_inl_makes_a_velocity_ripple_at_the_motor_turn_rate():
+    # Constant 990 deg/s at the axis (79,200 deg/s at the motor: 158.4 deg per 2 ms tick).
+    # The raw count difference per tick deviates from the true speed by
+    # 2 A1 sin(w dt / 2) cos(...) / dt: +-6.0 axis deg/s for A1 = 0.489 deg.
+    dt_s, a1 = 0.002, 0.489
+    w = math.radians(990.0 * 80)
+    enc = _enc(inl_h1_deg=a1)
+    x = np.zeros((1, 5))
+    readings = []
+    for k in range(400):
+        x[0, 1], x[0, 2] = w * k * dt_s, w
+        readings.append(int(enc.read(x)[0]))
+    diff = (np.diff(readings) + 8192) % 16384 - 8192
+    vel_axis_dps = diff * (360.0 / 16384) / dt_s / 80
+    ripple = vel_axis_dps - 990.0
+    bound = 2 * a1 * math.sin(w * dt_s / 2) / dt_s / 80
+    assert bound == pytest.approx(6.0, abs=0.02)
+    quant = 2 * (360.0 / 16384) / dt_s / 80  # one count either side
+    assert np.max(np.abs(ripple)) <= bound + quant
+    assert np.max(np.abs(ripple)) >= bound - quant
+
+
+def test_inl_off_reads_as_before():
+    theta = np.linspace(-50.0, 50.0, 1001)
+    x = np.zeros((theta.size, 5))
+    x[:, 1] = theta
+    plain = _enc().read(x)
+    zero = _enc(inl_h1_deg=0.0, inl_h2_deg=0.0, inl_h1_phase_deg=33.0).read(x)
+    np.testing.assert_array_equal(plain, zero)
+    np.testing.assert_array_equal(plain, np.floor(theta / COUNT_RAD).astype(np.int64) % 16384)

@@ -235,3 +235,50 @@ def test_hidden_excursion_into_a_band_is_detected():
     assert not _hermite_leaves(-0.3, -0.3, 0.4, -0.4, 0.1)  # peaks at -0.2: stays out
     assert not _hermite_leaves(-30.0, -29.0, 1.0, 1.0, 0.1)  # far away: gate
     assert _hermite_leaves(0.5, 0.5, -4.0, 4.0, 0.1)  # dips through the band to the other side
+
+
+def test_gearbox_drag_lowers_the_steady_speed_by_drag_over_slope():
+    base = PlantParams()
+    drag = dataclasses.replace(
+        base, gearbox=dataclasses.replace(base.gearbox, drag_nm=0.002, drag_viscous_nm_s_rad=1e-6)
+    )
+    xs = _run(ScalarPlant(drag, DT_S), [0.0] * 5, [0.5] * 1500)
+    w = steady_speed_rad_s(drag, 0.5)
+    assert xs[-1][2] == pytest.approx(w, rel=1e-6)
+    # Analytic: the motor torque balance at w, drag included.
+    m, n, eta = base.motor, base.total_ratio, base.gearbox.efficiency
+    r = m.r_ohm + base.bridge.r_on_path_ohm
+    i = (0.5 * 24.0 - m.ke_v_s_rad * w) / r
+    load = base.platter.coulomb_nm + base.platter.viscous_nm_s_rad * w / n
+    balance = m.kt_nm_a * i - (m.coulomb_nm + 0.002) - (m.viscous_nm_s_rad + 1e-6) * w
+    assert balance == pytest.approx(load / (n * eta), rel=1e-9)
+    assert w < steady_speed_rad_s(base, 0.5)
+    # Drag off is the model without it, bit for bit.
+    off = dataclasses.replace(base, gearbox=dataclasses.replace(base.gearbox, drag_nm=0.0))
+    np.testing.assert_array_equal(
+        _run(ScalarPlant(off, DT_S), [0.0] * 5, [0.5] * 50),
+        _run(ScalarPlant(base, DT_S), [0.0] * 5, [0.5] * 50),
+    )
+
+
+def test_gearbox_efficiency_is_load_dependent_with_drag():
+    # Measured in the simulated steady state: the power the belt delivers over the power
+    # the motor puts into the gearbox. With the drag it is low at light load and tends to
+    # eta at heavy load: eta_eff = (T/N) / (T/(N eta) + drag + drag_visc w).
+    base = PlantParams()
+    gb = dataclasses.replace(base.gearbox, drag_nm=0.002, drag_viscous_nm_s_rad=1e-6)
+    m, n, eta = base.motor, base.total_ratio, gb.efficiency
+    measured = []
+    for load_nm in (0.3, 1.5, 4.0):
+        pl = dataclasses.replace(base.platter, coulomb_nm=load_nm)
+        params = dataclasses.replace(base, gearbox=gb, platter=pl)
+        x = _run(ScalarPlant(params, DT_S), [0.0] * 5, [0.6] * 1500)[-1]
+        i, w, tw, wp = x[0], x[2], x[3], x[4]
+        tb = float(drivetrain.belt_torque_nm(tw, w / n - wp, params))
+        into_gearbox = (m.kt_nm_a * i - m.coulomb_nm - m.viscous_nm_s_rad * w) * w
+        eff = tb * wp / into_gearbox
+        t_out = load_nm + base.platter.viscous_nm_s_rad * wp
+        expected = (t_out / n) / (t_out / (n * eta) + gb.drag_nm + gb.drag_viscous_nm_s_rad * w)
+        assert eff == pytest.approx(expected, rel=1e-6)
+        measured.append(eff)
+    assert measured[0] < measured[1] < measured[2] < eta
