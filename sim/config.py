@@ -265,7 +265,11 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("motor", "viscous_nm_s_rad"): (0.0, 1.0, "a DC motor's viscous friction"),
     ("motor", "coulomb_nm"): (0.0, 10.0, "a DC motor's dry friction"),
     ("motor", "coulomb_band_rad_s"): (1e-6, 1e3, "a friction smoothing band"),
+    ("motor", "stiction_nm"): (0.0, 10.0, "a DC motor's breakaway friction"),
+    ("motor", "stribeck_rad_s"): (0.0, 1e3, "a Stribeck speed"),
     ("gearbox", "backlash_deg"): (0.0, 90.0, "a gearbox's backlash"),
+    ("gearbox", "drag_nm"): (0.0, 10.0, "a gearbox's no-load drag at the motor"),
+    ("gearbox", "drag_viscous_nm_s_rad"): (0.0, 1.0, "a gearbox's viscous drag at the motor"),
     ("belt", "small_teeth"): (8, 1000, "a timing pulley"),
     ("belt", "large_teeth"): (8, 1000, "a timing pulley"),
     ("belt", "stiffness_nm_rad"): (1.0, 1e9, "a timing belt's stiffness"),
@@ -274,6 +278,8 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("platter", "coulomb_nm"): (0.0, 1e4, "a slewing bearing's friction"),
     ("platter", "viscous_nm_s_rad"): (0.0, 1e4, "a slewing bearing's viscous friction"),
     ("platter", "coulomb_band_rad_s"): (1e-9, 1e3, "a friction smoothing band"),
+    ("platter", "stiction_nm"): (0.0, 1e4, "a slewing bearing's breakaway friction"),
+    ("platter", "stribeck_rad_s"): (0.0, 1e3, "a Stribeck speed"),
     ("encoder", "noise_rms_lsb"): (0.0, 1000.0, "encoder noise"),
 }
 

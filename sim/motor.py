@@ -20,9 +20,31 @@ from sim.params import MotorParams, PlantParams
 __all__ = ["friction_torque_nm", "no_load_speed_rad_s", "steady_speed_rad_s"]
 
 
-def friction_torque_nm(vel_rad_s: Any, coulomb_nm: Any, band_rad_s: Any, viscous: Any) -> Any:
-    """Friction torque opposing motion (N*m): saturated Coulomb plus viscous. Vectorised."""
-    return coulomb_nm * np.clip(vel_rad_s / band_rad_s, -1.0, 1.0) + viscous * vel_rad_s
+def friction_torque_nm(
+    vel_rad_s: Any,
+    coulomb_nm: Any,
+    band_rad_s: Any,
+    viscous: Any,
+    breakaway_nm: Any = None,
+    stribeck_rad_s: Any = None,
+) -> Any:
+    """Friction torque opposing motion (N*m), vectorised: viscous plus a piecewise-linear
+    Coulomb law with stiction. Inside the band ``|w| <= band`` the torque rises linearly to
+    the breakaway torque (sticking); between the band and the Stribeck speed it falls
+    linearly to Coulomb (the Stribeck drop, a negative slope: stick-slip); beyond, Coulomb.
+    Without ``breakaway_nm`` (or equal to Coulomb) it is the saturated Coulomb law."""
+    if breakaway_nm is None:
+        return coulomb_nm * np.clip(vel_rad_s / band_rad_s, -1.0, 1.0) + viscous * vel_rad_s
+    speed = np.abs(vel_rad_s)
+    sign = np.sign(vel_rad_s)
+    width = np.maximum(stribeck_rad_s - band_rad_s, 1e-300)
+    falling = breakaway_nm - (breakaway_nm - coulomb_nm) * (speed - band_rad_s) / width
+    magnitude = np.where(
+        speed <= band_rad_s,
+        breakaway_nm * speed / band_rad_s,
+        np.where(speed <= stribeck_rad_s, falling, coulomb_nm),
+    )
+    return sign * magnitude + viscous * vel_rad_s
 
 
 def no_load_speed_rad_s(motor: MotorParams, voltage_v: float, r_path_ohm: float = 0.0) -> float:

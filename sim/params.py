@@ -145,6 +145,33 @@ class CurrentSenseParams:
         return self.adc_vref_v / (1 << self.adc_bits) * self.k_ilis / self.r_is_ohm
 
 
+def _check_stiction(obj: Any) -> None:
+    """Stiction 0 (off) or at least Coulomb, with a Stribeck speed above the band."""
+    _non_negative(obj, "stiction_nm", "stribeck_rad_s")
+    ts, tc = np.asarray(obj.stiction_nm), np.asarray(obj.coulomb_nm)
+    on = ts > 0
+    _check(obj, "stiction_nm", bool(np.all(~on | (ts >= tc))), "must be 0 (off) or >= coulomb_nm")
+    ws, wb = np.asarray(obj.stribeck_rad_s), np.asarray(obj.coulomb_band_rad_s)
+    _check(
+        obj, "stribeck_rad_s", bool(np.all(~on | (ws > wb))),
+        "must be > coulomb_band_rad_s when stiction_nm > 0",
+    )  # fmt: skip
+
+
+def _breakaway(obj: Any) -> Any:
+    ts = obj.stiction_nm
+    if isinstance(ts, np.ndarray) or isinstance(obj.coulomb_nm, np.ndarray):
+        return np.where(np.asarray(ts) > 0, ts, obj.coulomb_nm)
+    return ts if ts > 0 else obj.coulomb_nm
+
+
+def _stribeck_edge(obj: Any) -> Any:
+    ts = obj.stiction_nm
+    if isinstance(ts, np.ndarray) or isinstance(obj.stribeck_rad_s, np.ndarray):
+        return np.where(np.asarray(ts) > 0, obj.stribeck_rad_s, obj.coulomb_band_rad_s)
+    return obj.stribeck_rad_s if ts > 0 else obj.coulomb_band_rad_s
+
+
 @dataclass(frozen=True)
 class MotorParams:
     """Brushed DC motor (a 24 V 775-class motor, assumed; see docs/model.md)."""
@@ -157,10 +184,25 @@ class MotorParams:
     viscous_nm_s_rad: float = 2e-6
     coulomb_nm: float = 0.004
     coulomb_band_rad_s: float = 0.1
+    # Stiction: breakaway torque above Coulomb, falling to Coulomb at the Stribeck speed
+    # (docs/model.md, "Friction"). 0 (the default) turns it off.
+    stiction_nm: float = 0.0
+    stribeck_rad_s: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "r_ohm", "l_h", "kt_nm_a", "ke_v_s_rad", "j_kgm2", "coulomb_band_rad_s")
         _non_negative(self, "viscous_nm_s_rad", "coulomb_nm")
+        _check_stiction(self)
+
+    @property
+    def breakaway_nm(self) -> Any:
+        """Friction torque at the edge of the band (N*m): the stiction, or Coulomb if off."""
+        return _breakaway(self)
+
+    @property
+    def stribeck_edge_rad_s(self) -> Any:
+        """Speed where the friction is back to Coulomb (rad/s); the band's edge if off."""
+        return _stribeck_edge(self)
 
 
 @dataclass(frozen=True)
@@ -216,10 +258,24 @@ class PlatterParams:
     coulomb_nm: float = 0.3
     viscous_nm_s_rad: float = 0.05
     coulomb_band_rad_s: float = 1e-3
+    # The slewing bearing's stiction, as the motor's (0 turns it off).
+    stiction_nm: float = 0.0
+    stribeck_rad_s: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "j_kgm2", "coulomb_band_rad_s")
         _non_negative(self, "coulomb_nm", "viscous_nm_s_rad")
+        _check_stiction(self)
+
+    @property
+    def breakaway_nm(self) -> Any:
+        """Friction torque at the edge of the band (N*m): the stiction, or Coulomb if off."""
+        return _breakaway(self)
+
+    @property
+    def stribeck_edge_rad_s(self) -> Any:
+        """Speed where the friction is back to Coulomb (rad/s); the band's edge if off."""
+        return _stribeck_edge(self)
 
 
 @dataclass(frozen=True)
@@ -359,6 +415,11 @@ class PlantParams:
         """Coulomb friction at the motor shaft (N*m): the motor's brushes and bearings plus
         the gearbox's no-load drag."""
         return self.motor.coulomb_nm + self.gearbox.drag_nm
+
+    @property
+    def motor_breakaway_nm(self) -> Any:
+        """Breakaway friction at the motor shaft (N*m): the motor's plus the gearbox drag."""
+        return self.motor.breakaway_nm + self.gearbox.drag_nm
 
     @property
     def motor_viscous_nm_s_rad(self) -> Any:

@@ -57,9 +57,11 @@ B_ON, B_LIMIT_POS, B_LIMIT_NEG, B_DIODE_POS, B_DIODE_NEG, B_OPEN = range(6)
 # Power flow through the gearbox: the motor drives the load, the load drives the motor, or
 # the motor is held at rest by the gearbox's load-dependent friction (see ``affine``).
 F_DRIVE, F_BACK, F_STUCK = range(3)
-# key = (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 3 + flow, with fm, fp, contact in
-# {0, 1, 2} for {negative, band/gap, positive}; MECH_MODES mechanical modes per bridge mode.
-MECH_MODES = 3 * 3 * 3 * 3
+# key = (((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow: fm, fp the friction regions
+# {0, 1, 2, 3, 4} = {below -Stribeck, falling -, band, falling +, above +Stribeck} of motor
+# and platter speed; contact {0, 1, 2} = {negative, gap, positive}; MECH_MODES mechanical
+# modes per bridge mode.
+MECH_MODES = 5 * 5 * 3 * 3
 N_MODES = 6 * MECH_MODES
 
 
@@ -76,10 +78,14 @@ class Coefficients:
     bm: Any
     tcm: Any
     wbm: Any
+    tsm: Any
+    wsm: Any
     jp: Any
     bp: Any
     tcp: Any
     wbp: Any
+    tsp: Any
+    wsp: Any
     k: Any
     c: Any
     half: Any
@@ -104,10 +110,14 @@ class Coefficients:
             bm=f(p.motor_viscous_nm_s_rad),
             tcm=f(p.motor_coulomb_nm),
             wbm=f(p.motor.coulomb_band_rad_s),
+            tsm=f(p.motor_breakaway_nm),
+            wsm=f(p.motor.stribeck_edge_rad_s),
             jp=f(p.platter.j_kgm2),
             bp=f(p.platter.viscous_nm_s_rad),
             tcp=f(p.platter.coulomb_nm),
             wbp=f(p.platter.coulomb_band_rad_s),
+            tsp=f(p.platter.breakaway_nm),
+            wsp=f(p.platter.stribeck_edge_rad_s),
             k=f(p.belt.stiffness_nm_rad),
             c=f(p.belt.damping_nm_s_rad),
             half=f(0.5 * np.radians(p.gearbox.backlash_deg) / p.belt.ratio),
@@ -119,12 +129,25 @@ class Coefficients:
         )
 
 
+def _friction_piece(region: int, tc: float, wb: float, ts: float, ws: float) -> tuple[float, float]:
+    """The Coulomb/stiction law ``sim.motor.friction_torque_nm`` in friction region
+    ``region`` (0..4) as ``slope * w + offset`` (viscous friction apart)."""
+    if region == 2:  # band: up to the breakaway torque
+        return ts / wb, 0.0
+    sign = 1.0 if region > 2 else -1.0
+    if region in (0, 4):  # beyond the Stribeck speed: Coulomb
+        return 0.0, sign * tc
+    # The Stribeck drop, a negative slope (no such region without stiction: ws = wb).
+    drop = (ts - tc) / (ws - wb) if ws > wb else 0.0
+    return -drop, sign * (ts + drop * wb)
+
+
 def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Continuous ``(A (5, 5), B (5,), e (5,))`` of mode ``key`` (scalar coefficients)."""
     flow = key % 3
     contact = (key // 3) % 3 - 1
-    fp = (key // 9) % 3 - 1
-    fm = (key // 27) % 3 - 1
+    fp = (key // 9) % 5
+    fm = (key // 45) % 5
     bridge = key // MECH_MODES
     a = np.zeros((N_X, N_X))
     b = np.zeros(N_X)
@@ -150,10 +173,9 @@ def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarr
     a[VEL, TWIST] = -g * k_tw / co.jm
     a[VEL, PVEL] = -g * k_wp / co.jm
     e[VEL] = -g * t0 / co.jm
-    if fm:
-        e[VEL] -= fm * co.tcm / co.jm
-    else:
-        a[VEL, VEL] -= co.tcm / co.wbm / co.jm
+    slope, offset = _friction_piece(fm, co.tcm, co.wbm, co.tsm, co.wsm)
+    a[VEL, VEL] -= slope / co.jm
+    e[VEL] -= offset / co.jm
     if flow == F_STUCK:
         # Held at w_m = 0 (Filippov's sliding motion on the power-flow switch): the motor
         # torque lies between the back-driven and the driving loads, so it can turn neither
@@ -166,10 +188,9 @@ def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarr
     a[PVEL, VEL] = k_wm / co.jp
     a[PVEL, PVEL] = (k_wp - co.bp) / co.jp
     e[PVEL] = t0 / co.jp
-    if fp:
-        e[PVEL] -= fp * co.tcp / co.jp
-    else:
-        a[PVEL, PVEL] -= co.tcp / co.wbp / co.jp
+    slope, offset = _friction_piece(fp, co.tcp, co.wbp, co.tsp, co.wsp)
+    a[PVEL, PVEL] -= slope / co.jp
+    e[PVEL] -= offset / co.jp
     return a, b, e
 
 
@@ -313,15 +334,37 @@ def derivative(
     dx[..., VEL] = (
         m.kt_nm_a * i
         - friction_torque_nm(
-            w, params.motor_coulomb_nm, m.coulomb_band_rad_s, params.motor_viscous_nm_s_rad
-        )
+            w,
+            params.motor_coulomb_nm,
+            m.coulomb_band_rad_s,
+            params.motor_viscous_nm_s_rad,
+            params.motor_breakaway_nm,
+            m.stribeck_edge_rad_s,
+        )  # fmt: skip
         - g * tb
     ) / m.j_kgm2
     dx[..., TWIST] = w / n - wp
     dx[..., PVEL] = (
-        tb - friction_torque_nm(wp, pl.coulomb_nm, pl.coulomb_band_rad_s, pl.viscous_nm_s_rad)
+        tb
+        - friction_torque_nm(
+            wp,
+            pl.coulomb_nm,
+            pl.coulomb_band_rad_s,
+            pl.viscous_nm_s_rad,
+            pl.breakaway_nm,
+            pl.stribeck_edge_rad_s,
+        )  # fmt: skip
     ) / pl.j_kgm2
     return dx
+
+
+def _friction_one(w: float, tc: float, wb: float, ts: float, ws: float) -> float:
+    """Coulomb/stiction torque at speed ``w`` on floats (``friction_torque_nm``'s law)."""
+    speed = abs(w)
+    if speed <= wb:
+        return ts * w / wb
+    mag = ts - (ts - tc) * (speed - wb) / (ws - wb) if speed <= ws else tc
+    return math.copysign(mag, w)
 
 
 def _derivative_one(
@@ -358,10 +401,16 @@ def _derivative_one(
     eta = params.gearbox.efficiency
     side = w if motor_dir is None else motor_dir
     g = eta / n if tb * side < 0 else 1.0 / (n * eta)
-    fm = params.motor_coulomb_nm * max(-1.0, min(1.0, w / m.coulomb_band_rad_s))
-    fm += params.motor_viscous_nm_s_rad * w
-    fp = pl.coulomb_nm * max(-1.0, min(1.0, wp / pl.coulomb_band_rad_s))
-    fp += pl.viscous_nm_s_rad * wp
+    fm = _friction_one(
+        w, params.motor_coulomb_nm, m.coulomb_band_rad_s, params.motor_breakaway_nm,
+        m.stribeck_edge_rad_s,
+    ) + params.motor_viscous_nm_s_rad * w  # fmt: skip
+    fp = (
+        _friction_one(
+            wp, pl.coulomb_nm, pl.coulomb_band_rad_s, pl.breakaway_nm, pl.stribeck_edge_rad_s
+        )
+        + pl.viscous_nm_s_rad * wp
+    )
     dw = 0.0 if motor_dir == 0 else (m.kt_nm_a * i - fm - g * tb) / m.j_kgm2
     return np.array([di, w, dw, rate, (tb - fp) / pl.j_kgm2])
 

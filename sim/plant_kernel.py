@@ -34,11 +34,11 @@ _B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6
 # consts[...] indices.
 (
     _WBM, _WBP, _HALF, _K, _C, _N, _VS, _R, _KE, _ICL, _VD2, _INV_N, _KT, _TCM, _BM, _G_MAX,
-    _JM, _TCP, _BP, _JP, _H_S, _ETA,
-) = range(22)  # fmt: skip
-N_CONSTS = 22
+    _JM, _TCP, _BP, _JP, _H_S, _ETA, _TSM, _WSM, _TSP, _WSP,
+) = range(26)  # fmt: skip
+N_CONSTS = 26
 # Mechanical modes per bridge mode (sim.plant.MECH_MODES) and the stuck power-flow mode.
-_MECH = 81
+_MECH = 225
 _F_STUCK = 2
 
 
@@ -52,6 +52,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     values += [float(g_max), float(co.jm), float(co.tcp), float(co.bp), float(co.jp)]
     values.append(float(h_s))
     values.append(float(co.eta))
+    values += [float(co.tsm), float(co.wsm), float(co.tsp), float(co.wsp)]
     return np.array(values)
 
 
@@ -61,8 +62,8 @@ def key(i, w, tw, wp, duty, enable, kc):
     power-flow modes)."""
     wbm, wbp, half, k, c, n = kc[_WBM], kc[_WBP], kc[_HALF], kc[_K], kc[_C], kc[_N]
     vs, r, ke, icl, vd2 = kc[_VS], kc[_R], kc[_KE], kc[_ICL], kc[_VD2]
-    fm = 2 if w > wbm else (0 if w < -wbm else 1)
-    fp = 2 if wp > wbp else (0 if wp < -wbp else 1)
+    fm = _friction_region(w, wbm, kc[_WSM])
+    fp = _friction_region(wp, wbp, kc[_WSP])
     if tw > half:
         contact = 2
         tb = k * (tw - half) + c * (w / n - wp)
@@ -88,7 +89,17 @@ def key(i, w, tw, wp, duty, enable, kc):
     else:
         emf = ke * w
         bridge = _B_DIODE_NEG if emf > vd2 else (_B_DIODE_POS if emf < -vd2 else _B_OPEN)
-    return (((bridge * 3 + fm) * 3 + fp) * 3 + contact) * 3 + flow
+    return (((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow
+
+
+@numba.njit(cache=True)
+def _friction_region(v, band, stribeck):
+    """0..4: below -stribeck, falling (negative side), band, falling (positive), above."""
+    if v > band:
+        return 4 if v > stribeck else 3
+    if v < -band:
+        return 0 if v < -stribeck else 1
+    return 2
 
 
 @numba.njit(cache=True)
@@ -183,8 +194,8 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     largest current the armature can approach, ``(V_s + |K_e w|) / R``; the platter's twice
     the belt torque at the ends plus its friction."""
     inv_n, half, k, c, vs, ke, r = kc[_INV_N], kc[_HALF], kc[_K], kc[_C], kc[_VS], kc[_KE], kc[_R]
-    kt, tcm, bm, g_max, jm, wbm = kc[_KT], kc[_TCM], kc[_BM], kc[_G_MAX], kc[_JM], kc[_WBM]
-    tcp, bp, jp, wbp, icl = kc[_TCP], kc[_BP], kc[_JP], kc[_WBP], kc[_ICL]
+    kt, bm, g_max, jm, wbm = kc[_KT], kc[_BM], kc[_G_MAX], kc[_JM], kc[_WBM]
+    bp, jp, wbp, icl = kc[_BP], kc[_JP], kc[_WBP], kc[_ICL]
     r0 = w0 * inv_n - p0
     r1 = w1 * inv_n - p1
     ar0, ar1 = abs(r0), abs(r1)
@@ -236,17 +247,25 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     ai = ai0 if ai0 >= ai1 else ai1
     if ai > i_bound:
         i_bound = ai
-    a_m = (kt * i_bound + tcm + bm * wmax + tbmax * g_max) / jm
-    gate_m = wbm + h * a_m
+    # Friction bounds at their largest (the breakaway torque; Coulomb without stiction).
+    tsm, wsm, tsp, wsp = kc[_TSM], kc[_WSM], kc[_TSP], kc[_WSP]
+    a_m = (kt * i_bound + tsm + bm * wmax + tbmax * g_max) / jm
+    gate_m = wsm + h * a_m  # the outer edge (the band's without stiction)
     check_m = aw0 <= gate_m or aw1 <= gate_m
     ap0, ap1 = abs(p0), abs(p1)
-    a_p = (2.0 * tbmax + tcp + bp * (ap0 if ap0 > ap1 else ap1)) / jp
-    gate_p = wbp + h * a_p
+    a_p = (2.0 * tbmax + tsp + bp * (ap0 if ap0 > ap1 else ap1)) / jp
+    gate_p = wsp + h * a_p
     check_p = ap0 <= gate_p or ap1 <= gate_p
     if not (check_m or check_p):
         return False
-    return (check_m and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)) or (
-        check_p and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
+    if check_m and (
+        hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)
+        or (wsm > wbm and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wsm))
+    ):
+        return True
+    return check_p and (
+        hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
+        or (wsp > wbp and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wsp))
     )
 
 

@@ -282,3 +282,63 @@ def test_gearbox_efficiency_is_load_dependent_with_drag():
         assert eff == pytest.approx(expected, rel=1e-6)
         measured.append(eff)
     assert measured[0] < measured[1] < measured[2] < eta
+
+
+def _with_stiction(params: PlantParams, motor_ts: float, motor_ws: float, plat_ts=0.0, plat_ws=0.0):
+    return dataclasses.replace(
+        params,
+        motor=dataclasses.replace(params.motor, stiction_nm=motor_ts, stribeck_rad_s=motor_ws),
+        platter=dataclasses.replace(params.platter, stiction_nm=plat_ts, stribeck_rad_s=plat_ws),
+    )
+
+
+def test_stiction_holds_below_breakaway_and_slips_above():
+    # Motor at rest, belt slack (in the backlash gap): a stall torque K_t V d / R below the
+    # breakaway torque T_s only creeps inside the band, at the analytic speed
+    # w = (K_t V d / R) / (T_s / w_b + b + K_t K_e / R); above T_s the motor breaks away.
+    base = PlantParams()
+    m = base.motor
+    params = _with_stiction(base, motor_ts=0.008, motor_ws=2.0)
+    r = m.r_ohm + base.bridge.r_on_path_ohm
+    ts = params.motor_breakaway_nm
+    for frac in (0.9, 1.1):
+        duty = frac * ts * r / (m.kt_nm_a * 24.0)
+        xs = _run(ScalarPlant(params, DT_S), [0.0] * 5, [duty] * 100)
+        if frac < 1:
+            creep = (m.kt_nm_a * 24.0 * duty / r) / (
+                ts / m.coulomb_band_rad_s + m.viscous_nm_s_rad + m.kt_nm_a * m.ke_v_s_rad / r
+            )
+            assert xs[-1][2] == pytest.approx(creep, rel=1e-6)
+            assert xs[-1][2] < m.coulomb_band_rad_s
+        else:
+            assert xs[-1][2] > 50 * m.coulomb_band_rad_s
+    # Without stiction the same 0.9 T_s (above Coulomb) turns the motor.
+    duty = 0.9 * ts * r / (m.kt_nm_a * 24.0)
+    xs = _run(ScalarPlant(base, DT_S), [0.0] * 5, [duty] * 100)
+    assert xs[-1][2] > 50 * m.coulomb_band_rad_s
+
+
+def test_stiction_and_stribeck_drop_match_solve_ivp():
+    # Break away, run, reverse and stop through the Stribeck regions of motor and platter
+    # (negative friction slopes: stick-slip), against the oracle.
+    params = _with_stiction(PlantParams(), 0.008, 2.0, plat_ts=0.45, plat_ws=0.01)
+    duties = [0.02] * 60 + [0.3] * 60 + [-0.25] * 100 + [0.0] * 80
+    xs = _run(ScalarPlant(params, DT_S), [0.0] * 5, duties)
+    ref = _oracle(params, [0.0] * 5, duties)
+    assert np.max(np.abs(xs[:, 1] - ref[:, 1])) / (2 * math.pi) < 1e-7
+    np.testing.assert_allclose(xs[:, 4], ref[:, 4], atol=1e-7)
+
+
+def test_friction_law_pieces_are_the_physics_function():
+    # affine's piecewise-linear friction equals sim.motor.friction_torque_nm in every region.
+    params = _with_stiction(PlantParams(), 0.008, 2.0, plat_ts=0.45, plat_ws=0.01)
+    co = Coefficients.from_params(params)
+    from sim.motor import friction_torque_nm
+    from sim.plant import _friction_piece
+    from sim.plant_kernel import _friction_region
+
+    for w in (-5.0, -1.0, -0.05, 0.0, 0.03, 0.5, 1.99, 3.0):
+        region = _friction_region(w, co.wbm, co.wsm)
+        slope, offset = _friction_piece(region, co.tcm, co.wbm, co.tsm, co.wsm)
+        expected = friction_torque_nm(w, co.tcm, co.wbm, 0.0, co.tsm, co.wsm)
+        assert slope * w + offset == pytest.approx(float(expected), abs=1e-15)
