@@ -1,20 +1,21 @@
-"""The tick before and after issue 13 (plant fidelity, round 2), paired in one process.
+"""The tick before and after issue 13 (plant fidelity, round 2), paired.
 
 Issue 13's target: the tick stays within 25 % of its speed before the issue. The reference
-is the plant of ``REF`` (the last commit before the issue's changes to ``sim/plant.py`` and
-``sim/plant_kernel.py``), loaded from git into this process next to the working tree's; the
-runs alternate (reference, new, reference, ...) so that the machine's load hits both alike,
-and the ratio of the medians is quoted, with the load average.
+``REF`` is the tree before the issue's commits (default: the merge base with main, i.e.
+main without this branch).
 
-1. the plant alone: the 15,000 recorded inputs of a 30 s Fig. 8 run, N = 1 (``Plant.update``);
-2. the whole 20 s Fig. 8 run (``sim.loop.run``, firmware, encoder, UART), N = 1, with the
-   reference plant swapped into ``sim.loop`` and the encoder's INL off (the tick before the
-   issue) against the working tree's plant with ``paper_bench.toml``'s INL on;
-3. the same at N = 64 (2 s), parameters shared.
+1. the plant alone, in one process: ``REF``'s ``sim/plant.py`` and ``sim/plant_kernel.py``
+   loaded from git as private modules next to the working tree's, both stepping the
+   15,000 recorded inputs of a 30 s Fig. 8 run (N = 1), runs alternating;
+2. the whole 20 s Fig. 8 run (``sim.loop.run``: the compiled tick, firmware, encoder,
+   UART), N = 1 and N = 64 (2 s): ``REF``'s tree (``git archive``) and the working tree,
+   each timed inside a fresh process, the processes alternating.
+
+Medians and the ratio new / reference, with the load average (the machine is shared).
 
 Usage::
 
-    python3 benchmarks/bench_plant.py [--repeat 5] [--ref c2ce113]
+    python3 benchmarks/bench_plant.py [--repeat 5] [--ref REV]
 """
 
 from __future__ import annotations
@@ -38,7 +39,19 @@ from sim import loop  # noqa: E402
 from sim.plant import Plant  # noqa: E402
 from sim.reproduce import experiments  # noqa: E402
 
-INL_OFF = {"encoder.inl_h1_deg": 0.0, "encoder.inl_h2_deg": 0.0}
+# One timed run in a fresh process of a tree (its root first on sys.path).
+CHILD = """
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from sim.loop import run
+from sim.reproduce import experiments
+exp = experiments.with_duration(experiments.load("fig8"), float(sys.argv[2]))
+batch = int(sys.argv[3]) or None
+run(experiments.with_duration(exp, 0.1), batch=batch)  # compile / load the kernels
+wall = time.perf_counter()
+run(exp, batch=batch)
+print(time.perf_counter() - wall)
+"""
 
 
 def load_reference(ref: str) -> type:
@@ -92,39 +105,51 @@ def time_plant(plant_cls: type, params, duty, enable) -> float:
     return time.perf_counter() - wall
 
 
-def time_run(plant_cls: type, duration_s: float, batch: int | None, overrides) -> float:
-    exp = experiments.with_duration(experiments.load("fig8"), duration_s)
-    saved, loop.Plant = loop.Plant, plant_cls
-    try:
-        wall = time.perf_counter()
-        loop.run(exp, seed=0, batch=batch, overrides=overrides)
-        return time.perf_counter() - wall
-    finally:
-        loop.Plant = saved
+def time_run(tree: Path, duration_s: float, batch: int) -> float:
+    """Wall time of one Fig. 8 run of ``tree`` in a fresh process (kernels loaded first)."""
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(tree), str(duration_s), str(batch)],
+        check=True, capture_output=True, text=True, cwd=tree,
+    ).stdout  # fmt: skip
+    return float(out.strip().splitlines()[-1])
+
+
+def export_tree(ref: str) -> Path:
+    """``ref``'s tree in a temporary directory."""
+    tmp = Path(tempfile.mkdtemp(prefix="bench_plant_tree_"))
+    archive = subprocess.run(
+        ["git", "-C", str(ROOT), "archive", ref], check=True, capture_output=True
+    ).stdout
+    subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive, check=True)
+    return tmp
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--ref", default="c2ce113")
+    ap.add_argument("--ref", default=None, help="default: git merge-base HEAD main")
     args = ap.parse_args()
-    ref_plant = load_reference(args.ref)
+    ref = args.ref or subprocess.run(
+        ["git", "-C", str(ROOT), "merge-base", "HEAD", "main"],
+        check=True, capture_output=True, text=True,
+    ).stdout.strip()  # fmt: skip
+    ref_plant = load_reference(ref)
+    ref_tree = export_tree(ref)
     duty, enable, params = recorded_inputs(30.0)
     cases = [
-        ("plant, 15,000 Fig. 8 steps, N = 1", lambda cls, o: time_plant(cls, params, duty, enable)),
-        ("fig8 20 s run, N = 1", lambda cls, o: time_run(cls, 20.0, None, o)),
-        ("fig8 2 s run, N = 64", lambda cls, o: time_run(cls, 2.0, 64, o)),
-    ]
-    # Warm-up: compile or load both kernels, fill the matrix caches.
-    for _, fn in cases:
-        fn(ref_plant, INL_OFF)
-        fn(Plant, None)
-    print(f"reference {args.ref}; load average {os.getloadavg()[0]:.2f} at the start")
+        ("plant, 15,000 Fig. 8 steps, N = 1", lambda new: time_plant(
+            Plant if new else ref_plant, params, duty, enable)),
+        ("fig8 20 s run, N = 1", lambda new: time_run(ROOT if new else ref_tree, 20.0, 0)),
+        ("fig8 2 s run, N = 64", lambda new: time_run(ROOT if new else ref_tree, 2.0, 64)),
+    ]  # fmt: skip
+    time_plant(ref_plant, params, duty, enable)  # compile / load both plant kernels
+    time_plant(Plant, params, duty, enable)
+    print(f"reference {ref[:10]}; load average {os.getloadavg()[0]:.2f} at the start")
     for label, fn in cases:
         ref_s, new_s = [], []
         for _ in range(args.repeat):
-            ref_s.append(fn(ref_plant, INL_OFF))
-            new_s.append(fn(Plant, None))
+            ref_s.append(fn(False))
+            new_s.append(fn(True))
         r, n = statistics.median(ref_s), statistics.median(new_s)
         ratios = [b / a for a, b in zip(ref_s, new_s, strict=True)]
         print(
