@@ -85,6 +85,15 @@ static void on_frame(void *ctx, uint8_t type, uint8_t seq, const uint8_t *payloa
             break;
         case TT_SET_TELEMETRY: printf(" %u", c.u.set_telemetry.decimation); break;
         case TT_GET_FAULT: printf(" %u", c.u.get_fault.bit); break;
+        case TT_QUEUE_SEGMENT:
+            printf(" %ld %lu %lu", (long)c.u.queue_segment.target,
+                   (unsigned long)c.u.queue_segment.v_max,
+                   (unsigned long)c.u.queue_segment.dwell);
+            break;
+        case TT_QUEUE_CONTROL:
+            printf(" %u %lu", c.u.queue_control.action,
+                   (unsigned long)c.u.queue_control.override_pct);
+            break;
         default: break;
         }
     }
@@ -184,6 +193,13 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.latched = (uint8_t)v(t, ok); m.tick = v(t, ok); m.value = v(t, ok);
         m.threshold = v(t, ok);
         return tt_encode_fault_info(p, &m);
+    }
+    case TT_QUEUE_STATUS: {
+        tt_queue_status m;
+        m.cmd_id = (uint16_t)v(t, ok); m.state = (uint8_t)v(t, ok);
+        m.free_slots = (uint8_t)v(t, ok); m.queued = (uint8_t)v(t, ok);
+        m.done = v(t, ok); m.override_pct = v(t, ok);
+        return tt_encode_queue_status(p, &m);
     }
     default:
         *ok = 0;

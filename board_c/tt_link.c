@@ -239,8 +239,8 @@ void tt_decoder_tick(tt_decoder *d, int bytes_this_tick, tt_frame_fn fn, void *c
 /* ------------------------------------------------------------------ commands */
 
 /* Payload length of each command type (index = type), 0 = not a command. */
-static const uint8_t command_len[0x0E] = {
-    0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5,
+static const uint8_t command_len[0x10] = {
+    0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5, 16, 9,
 };
 
 int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cmd,
@@ -309,6 +309,19 @@ int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cm
         break;
     case TT_GET_FAULT:
         cmd->u.get_fault.bit = p[4];
+        break;
+    case TT_QUEUE_SEGMENT:
+        cmd->u.queue_segment.target = (int32_t)get_u32(p + 4);
+        cmd->u.queue_segment.v_max = get_u32(p + 8);
+        cmd->u.queue_segment.dwell = get_u32(p + 12);
+        break;
+    case TT_QUEUE_CONTROL:
+        cmd->u.queue_control.action = p[4];
+        cmd->u.queue_control.override_pct = get_u32(p + 5);
+        if (p[4] > 4u) {
+            *field = 2;
+            return TT_OUT_OF_RANGE;
+        }
         break;
     default: /* Heartbeat, ClearFault, GetLimits, GetStatus: cmd_id and session only */
         break;
@@ -457,5 +470,17 @@ size_t tt_encode_fault_info(uint8_t *out, const tt_fault_info *m)
     put_u32(out, &at, m->tick);
     put_u32(out, &at, m->value);
     put_u32(out, &at, m->threshold);
+    return at;
+}
+
+size_t tt_encode_queue_status(uint8_t *out, const tt_queue_status *m)
+{
+    size_t at = 0;
+    put_u16(out, &at, m->cmd_id);
+    put_u8(out, &at, m->state);
+    put_u8(out, &at, m->free_slots);
+    put_u8(out, &at, m->queued);
+    put_u32(out, &at, m->done);
+    put_u32(out, &at, m->override_pct);
     return at;
 }

@@ -38,17 +38,18 @@ enum tt_type {
     TT_HELLO = 0x01, TT_HEARTBEAT = 0x02, TT_MOVE = 0x03, TT_STOP = 0x04,
     TT_SET_ENABLE = 0x05, TT_CLEAR_FAULT = 0x06, TT_SET_GAINS = 0x07, TT_GET_GAINS = 0x08,
     TT_SET_LIMITS = 0x09, TT_GET_LIMITS = 0x0A, TT_GET_STATUS = 0x0B, TT_SET_TELEMETRY = 0x0C,
-    TT_GET_FAULT = 0x0D,
+    TT_GET_FAULT = 0x0D, TT_QUEUE_SEGMENT = 0x0E, TT_QUEUE_CONTROL = 0x0F,
     TT_HELLO_REPLY = 0x81, TT_TELEMETRY = 0x82, TT_ACK = 0x83, TT_NACK = 0x84,
     TT_FAULT_REPORT = 0x85, TT_GAINS = 0x86, TT_LIMITS = 0x87, TT_STATUS = 0x88,
-    TT_BOARD_HEARTBEAT = 0x89, TT_FAULT_INFO = 0x8A
+    TT_BOARD_HEARTBEAT = 0x89, TT_FAULT_INFO = 0x8A, TT_QUEUE_STATUS = 0x8B
 };
 
 enum tt_nack_code {
     TT_OK = 0, TT_UNKNOWN_TYPE = 1, TT_BAD_LENGTH = 2, TT_NOT_FINITE = 3, TT_OUT_OF_RANGE = 4,
     TT_UNSTABLE_GAINS = 5, TT_FAULT_ACTIVE = 6, TT_DISABLED = 7, TT_NOT_A_COMMAND = 8,
     TT_NO_SESSION = 9, TT_STALE_SESSION = 10, TT_UNSUPPORTED_VERSION = 11, TT_TOO_HIGH = 12,
-    TT_TOO_LOW = 13, TT_BUSY = 14, TT_TRAVEL = 15
+    TT_TOO_LOW = 13, TT_BUSY = 14, TT_TRAVEL = 15,
+    TT_QUEUE_FULL = 16
 };
 
 /* ------------------------------------------------------------------ checks and framing */
@@ -118,6 +119,8 @@ typedef struct {
         } set_limits;
         struct { uint16_t decimation; } set_telemetry;
         struct { uint8_t bit; } get_fault;
+        struct { int32_t target; uint32_t v_max, dwell; } queue_segment;
+        struct { uint8_t action; uint32_t override_pct; } queue_control;
     } u; /* f32 fields as their bit patterns (tt_f32_finite, then memcpy into a float) */
 } tt_command;
 
@@ -188,6 +191,11 @@ typedef struct {
     uint8_t bit, latched;
     uint32_t tick, value, threshold; /* value, threshold: f32 bits */
 } tt_fault_info;
+typedef struct {
+    uint16_t cmd_id;
+    uint8_t state, free_slots, queued;
+    uint32_t done, override_pct; /* override_pct: f32 bits */
+} tt_queue_status;
 
 /* Each writes the payload into `out` (TT_MAX_PAYLOAD bytes) and returns its length. */
 size_t tt_encode_hello_reply(uint8_t *out, const tt_hello_reply *m);
@@ -200,5 +208,6 @@ size_t tt_encode_limits(uint8_t *out, const tt_limits *m);
 size_t tt_encode_status(uint8_t *out, const tt_status *m);
 size_t tt_encode_board_heartbeat(uint8_t *out, const tt_board_heartbeat *m);
 size_t tt_encode_fault_info(uint8_t *out, const tt_fault_info *m);
+size_t tt_encode_queue_status(uint8_t *out, const tt_queue_status *m);
 
 #endif /* TT_LINK_H */

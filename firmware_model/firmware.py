@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model import safety
+from firmware_model import programs, safety
 from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import P_DUTY, P_IMEAS, P_IREF, P_POS, P_VEL, P_VEL_RAW
@@ -66,6 +66,11 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueState,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -102,10 +107,15 @@ _LOOP_GAINS = {
 }
 # Commands that change something: a repeat of the last one of the session is answered
 # again, not re-applied.
-_MUTATING = (Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry)
+_MUTATING = (
+    Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry, QueueSegment,
+    QueueControl,
+)  # fmt: skip
 #: Smallest positive rate or limit a command may carry (deg/s, deg/s², A, deg): the lower
 #: bound of the documented ranges (docs/protocol.md section 4).
 MIN_POSITIVE = 1e-3
+#: Longest dwell of a program block (s).
+MAX_DWELL_S = 3600.0
 #: Bytes the board's receive ring holds per servo tick; more is lost and counted.
 RX_BUFFER_BYTES = 256
 #: Bit t set: command type t is handled (HelloReply.command_mask).
@@ -204,6 +214,9 @@ class Firmware:
         self.sp_pos_deg = 0.0
         self.sp_vel_dps = 0.0
         self.sp_acc_dps2 = 0.0
+        # The motion-program queue (firmware_model/programs.py); its profile is followed
+        # through the trapezoid planner like a Move's.
+        self.program = programs.ProgramQueue(programs.QUEUE_CAPACITY, self.dt_s)
         # Link.
         self.decoder = frame.Decoder()
         self._replies: deque[Any] = deque()
@@ -508,6 +521,7 @@ class Firmware:
         self._hold_here()
 
     def _hold_here(self) -> None:
+        self.program.clear()
         self._mode = "hold"
         self._moving = False
         self.sp_pos_deg = self._pos0()
@@ -779,10 +793,14 @@ class Firmware:
             ClearFault: self._cmd_clear_fault,
             SetEnable: self._cmd_set_enable,
             SetTelemetry: self._cmd_set_telemetry,
+            QueueSegment: self._cmd_queue_segment,
+            QueueControl: self._cmd_queue_control,
         }[type(msg)]
         refusal = handler(msg)
         if refusal is not None:
             return self._nack(msg, *refusal)
+        if isinstance(msg, QueueSegment | QueueControl):
+            return self.queue_status(msg.cmd_id)
         return Ack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE))
 
     def _motion_refused(self) -> _Refusal | None:
@@ -808,19 +826,20 @@ class Firmware:
         if refusal is not None:
             return refusal
         kind = _PROFILE_KIND.get(profile)
-        if kind is not None and self._mode == "plan" and self._moving and kind != self._kind:
-            return NackCode.BUSY, "profile", 0.0  # the profile kind changes only at rest
         refused = self._motion_refused()
         if refused is not None:
             return refused
         t_s = self.tick * self.dt_s
         if kind is None:  # Profile.STEP: no planning, the setpoint jumps to the target
+            self.program.clear()
             self._mode = "step"
             self._v_clamp_dps = m.v_max_dps
         else:
             # Planned on a copy, checked over its whole extent, committed only if accepted.
-            if self._mode == "plan" and self._kind == kind:
-                planner = copy.copy(self._planners[kind])
+            if self._mode == "plan":
+                # From the commanded state, switching the profile kind on the way if asked
+                # (OnlinePlanner.command(kind=...): no jump in position or velocity).
+                planner = copy.copy(self._planners[self._kind])
             elif self._mode == "step":
                 planner = self._planner_from_axis(kind, t_s)
             else:  # from hold: from rest where the axis is held
@@ -829,13 +848,15 @@ class Firmware:
             j_max = m.j_max_dps3 if kind == "scurve" else None
             try:
                 profile = planner.command(t_s, m.target_deg, v_max=m.v_max_dps,
-                                          a_max=m.a_max_dps2, j_max=j_max)  # fmt: skip
+                                          a_max=m.a_max_dps2, j_max=j_max,
+                                          kind=kind)  # fmt: skip
             except ValueError:
                 return NackCode.OUT_OF_RANGE, None, 0.0
             refusal = self._travel_refusal(profile, None)
             if refusal is not None:
                 return refusal
             self._planners[kind] = planner
+            self.program.clear()  # a Move replaces a running program
             self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
             self._move_limits = (m.v_max_dps, m.a_max_dps2)
             self._v_clamp_dps = self.v_max_dps
@@ -871,7 +892,115 @@ class Firmware:
             self._moving = True
         self._planners[kind] = planner
         self._target_deg = profile.p1
+        self.program.clear()  # Stop aborts a program (QueueControl HOLD keeps it)
         return None
+
+    # ------------------------------------------------------------------ programs
+    def _cmd_queue_segment(self, m: QueueSegment) -> _Refusal | None:
+        lim = self.params.limits
+        refusal = _check_ranges([
+            ("target_deg", m.target_deg, lim.travel_min_deg, lim.travel_max_deg),
+            ("v_max_dps", m.v_max_dps, MIN_POSITIVE, self.v_max_dps),
+            ("dwell_s", m.dwell_s, 0.0, MAX_DWELL_S),
+        ])  # fmt: skip
+        if refusal is not None:
+            return refusal
+        refused = self._motion_refused()
+        if refused is not None:
+            return refused
+        prog = self.program
+        if not prog.active() and self._mode != "hold" and self._moving:
+            return NackCode.BUSY, None, 0.0  # a Move in progress: the program starts at rest
+        t_s = self.tick * self.dt_s
+        if prog.free(t_s) == 0:
+            return NackCode.QUEUE_FULL, None, float(prog.capacity)
+        trial = copy.deepcopy(prog)  # planned on a copy, committed only if it plans
+        try:
+            profile = trial.append(
+                t_s, self.sp_pos_deg, m.target_deg, m.v_max_dps, m.dwell_s,
+                v_limit_dps=self.v_max_dps, a_max_dps2=self.a_max_dps2,
+            )  # fmt: skip
+        except ValueError:
+            return NackCode.OUT_OF_RANGE, None, 0.0
+        self.program = trial
+        if not trial.held:
+            self._follow_program(profile, trial.t_start_s)
+        return None
+
+    def _cmd_queue_control(self, m: QueueControl) -> _Refusal | None:
+        action = QueueAction(m.action)
+        prog = self.program
+        t_s = self.tick * self.dt_s
+        prog.finish(t_s)
+        if action is QueueAction.OVERRIDE:
+            refusal = _check_ranges([("override_pct", m.override_pct, 10.0, 200.0)])
+            if refusal is not None:
+                return refusal
+            trial = copy.deepcopy(prog)
+            try:
+                profile = trial.set_override(t_s, m.override_pct)
+            except ValueError:
+                return NackCode.OUT_OF_RANGE, None, 0.0
+            self.program = trial
+            if profile is not None:
+                self._follow_program(profile, trial.t_start_s)
+            return None
+        if action is QueueAction.STATUS or not prog.active():
+            return None
+        if action is QueueAction.ABORT:
+            refusal = self._cmd_stop(Stop(m.cmd_id, 0.0))  # Stop empties the queue
+            self.program.clear()
+            return refusal
+        if action is QueueAction.HOLD:
+            if prog.held or self._mode != "plan":
+                return None
+            planner = copy.copy(self._planners[self._kind])
+            profile = planner.stop(t_s, a_max=self.a_max_dps2, kind="trapezoid")
+            refusal = self._travel_refusal(profile, None)
+            if refusal is not None:
+                return refusal
+            prog.hold(t_s, profile.p1)
+            self._planners[self._kind] = planner
+            self._target_deg = profile.p1
+            return None
+        # RESUME
+        if not prog.held:
+            return None
+        if self._moving:
+            return NackCode.BUSY, "action", 0.0  # still braking from the hold
+        trial = copy.deepcopy(prog)
+        try:
+            profile = trial.resume(t_s, self.sp_pos_deg)
+        except ValueError:
+            return NackCode.OUT_OF_RANGE, None, 0.0
+        self.program = trial
+        if profile is not None:
+            self._follow_program(profile, trial.t_start_s)
+        return None
+
+    def _follow_program(self, profile: Any, t_start_s: float) -> None:
+        """Follow the program's profile through the trapezoid planner (as a Move)."""
+        planner = OnlinePlanner("trapezoid")
+        planner.reset(profile.p0)
+        planner.profile, planner.t_start_s = profile, t_start_s
+        planner.moving = True
+        self._planners["trapezoid"] = planner
+        self._mode, self._kind = "plan", "trapezoid"
+        self._move_limits = (self.v_max_dps, self.a_max_dps2)
+        self._v_clamp_dps = self.v_max_dps
+        self._target_deg = profile.p1
+        self._moving = True
+        self._moved = True
+
+    def queue_status(self, cmd_id: int = 0) -> QueueStatus:
+        """The program queue's state now (the answer to the queue commands)."""
+        prog = self.program
+        t_s = self.tick * self.dt_s
+        queued = prog.queued(t_s)
+        state = QueueState.HELD if prog.held else (
+            QueueState.RUNNING if prog.active() else QueueState.EMPTY)  # fmt: skip
+        return QueueStatus(cmd_id, state, prog.capacity - queued, queued,
+                           prog.done & 0xFFFFFFFF, prog.override_pct)  # fmt: skip
 
     def _travel_refusal(self, profile: Any, field: str | None) -> _Refusal | None:
         """``NackCode.TRAVEL`` naming ``field`` and the travel end ``profile`` would cross

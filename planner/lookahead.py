@@ -410,7 +410,8 @@ class LookaheadQueue:
         self._last = np.atleast_1d(np.asarray(start, dtype=float)).copy()
         if not np.all(np.isfinite(self._last)):
             raise ValueError(f"start = {start!r}: must be finite")
-        self._pending: deque[tuple[Array, Array, float]] = deque()  # (start, dir, length)
+        # (start, dir, length, the segment's speed limit, at rest at its end)
+        self._pending: deque[tuple[Array, Array, float, float, bool]] = deque()
         self._v_in = 0.0  # speed at the start of the first pending segment (final)
         self._t = 0.0
         self._stop_distance = v_max * v_max / (2.0 * a_max)
@@ -418,16 +419,28 @@ class LookaheadQueue:
     def __len__(self) -> int:
         return len(self._pending)
 
-    def append(self, point: Array | list | float) -> list[PathSegment]:
-        """Queue the segment to ``point``; returns segments forced out by a full window."""
+    def append(
+        self, point: Array | list | float, *, v_max: float | None = None, stop: bool = False
+    ) -> list[PathSegment]:
+        """Queue the segment to ``point``; returns segments forced out by a full window.
+
+        Args:
+            v_max: this segment's own speed limit (None: the queue's ``v_max``; never above
+                it); its junctions are capped at the lower of the two segments' limits.
+            stop: come to rest at ``point`` (a dwell there), whatever follows.
+        """
         p = np.atleast_1d(np.asarray(point, dtype=float))
         if p.shape != self._last.shape or not np.all(np.isfinite(p)):
             raise ValueError(f"point = {point!r}: need a finite point of shape {self._last.shape}")
+        v_seg = self.v_max if v_max is None else float(v_max)
+        if not 0.0 < v_seg < math.inf:
+            raise ValueError(f"v_max = {v_max!r}: must be positive and finite")
+        v_seg = min(v_seg, self.v_max)
         diff = p - self._last
         length = float(np.linalg.norm(diff))
         if length == 0.0:
             return []
-        self._pending.append((self._last.copy(), diff / length, length))
+        self._pending.append((self._last.copy(), diff / length, length, v_seg, bool(stop)))
         self._last = p.copy()
         out = []
         while len(self._pending) > self.window:
@@ -435,10 +448,17 @@ class LookaheadQueue:
         return out
 
     def _speeds(self) -> list[float]:
-        lengths = [seg[2] for seg in self._pending]
-        dirs = [seg[1] for seg in self._pending]
+        pend = self._pending
+        lengths = [seg[2] for seg in pend]
+        dirs = [seg[1] for seg in pend]
         caps = [
-            _corner_cap(dirs[i], dirs[i + 1], self.a_max, self.period, self.contour_error)
+            0.0
+            if pend[i][4]
+            else min(
+                _corner_cap(dirs[i], dirs[i + 1], self.a_max, self.period, self.contour_error),
+                pend[i][3],
+                pend[i + 1][3],
+            )
             for i in range(len(dirs) - 1)
         ]
         return junction_speeds(
@@ -449,9 +469,9 @@ class LookaheadQueue:
         speeds = self._speeds()
         out = []
         for k in range(count):
-            start, direction, length = self._pending.popleft()
+            start, direction, length, v_seg, _ = self._pending.popleft()
             prof = plan_segment(
-                length, speeds[k], speeds[k + 1], self.v_max, self.a_max, optimal=self.optimal
+                length, speeds[k], speeds[k + 1], v_seg, self.a_max, optimal=self.optimal
             )
             out.append(PathSegment(start, direction, length, self._t, prof))
             self._t += prof.duration
@@ -466,13 +486,35 @@ class LookaheadQueue:
         """
         after = sum(seg[2] for seg in self._pending)
         ready = 0
-        for _, _, length in self._pending:
+        for _, _, length, _, _ in self._pending:
             after -= length
             if after >= self._stop_distance:
                 ready += 1
             else:
                 break
         return self._release(ready) if ready else []
+
+    def release(self, count: int = 1) -> list[PathSegment]:
+        """Release the first ``count`` pending segments now, with the speeds planned for
+        stopping at the end of the window (what a machine entering them must commit to)."""
+        count = min(count, len(self._pending))
+        return self._release(count) if count > 0 else []
+
+    def preview(self) -> list[Profile]:
+        """The pending segments' arc-length profiles as :meth:`flush` would plan them (at
+        rest at the end of the window), without releasing anything."""
+        if not self._pending:
+            return []
+        speeds = self._speeds()
+        return [
+            plan_segment(seg[2], speeds[k], speeds[k + 1], seg[3], self.a_max,
+                         optimal=self.optimal)
+            for k, seg in enumerate(self._pending)
+        ]  # fmt: skip
+
+    def pending(self) -> list[tuple[Array, float, bool]]:
+        """The pending segments as ``(end point, speed limit, stop at the end)``."""
+        return [(seg[0] + seg[1] * seg[2], seg[3], seg[4]) for seg in self._pending]
 
     def flush(self) -> list[PathSegment]:
         """End the path at rest at the last point; release every pending segment."""

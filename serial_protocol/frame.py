@@ -61,6 +61,11 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueState,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -381,6 +386,36 @@ _ROWS: tuple[_Row, ...] = (
             _f("tick", "u32", "tick", "tick it tripped (0 if not latched)", wrap=True),
             _f("value", "f32", "fault's unit", "measured value that tripped it"),
             _f("threshold", "f32", "fault's unit", "the threshold it crossed"),
+        ),
+    ),
+    _Row(
+        QueueSegment,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("target_deg", "i32", "deg", "end of the block, 1 LSB = 1e-4 deg", **_POS),
+            _f("v_max_dps", "f32", "deg/s", "the block's speed limit"),
+            _f("dwell_s", "f32", "s", "rest at the target (0 = none)"),
+        ),
+    ),
+    _Row(
+        QueueControl,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("action", "u8", "", "`QueueAction` code", enum=QueueAction),
+            _f("override_pct", "f32", "%", "speed override (OVERRIDE only)"),
+        ),
+    ),
+    _Row(
+        QueueStatus,
+        (
+            _CMD_ID,
+            _f("state", "u8", "", "`QueueState` code", enum=QueueState),
+            _f("free_slots", "u8", "blocks", "blocks that may be sent now"),
+            _f("queued", "u8", "blocks", "blocks held, not finished"),
+            _f("done", "u32", "blocks", "blocks finished since boot", wrap=True),
+            _f("override_pct", "f32", "%", "speed override in force"),
         ),
     ),
 )

@@ -46,6 +46,10 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -63,7 +67,7 @@ ACK_TIMEOUT_S = 0.1
 #: Retries after the first attempt, each with the same cmd_id.
 RETRIES = 3
 
-_REPLIES = (Ack, Nack, Gains, Limits, Status, FaultInfo)
+_REPLIES = (Ack, Nack, Gains, Limits, Status, FaultInfo, QueueStatus)
 _COMMANDS = frozenset(COMMAND_TYPES)
 # What a NackCode says about the refused field or command, for nack_text.
 _NACK_WORDS = {
@@ -80,6 +84,7 @@ _NACK_WORDS = {
     NackCode.UNSUPPORTED_VERSION: "the board speaks another protocol version",
     NackCode.BUSY: "refused while the board is busy",
     NackCode.TRAVEL: "the trajectory would leave the travel",
+    NackCode.QUEUE_FULL: "the program queue is full (wait for free slots)",
 }
 
 
@@ -318,6 +323,73 @@ class BoardClient:
     def get_fault(self, bit: int) -> FaultInfo | Nack:
         """Details of fault flag ``bit`` (0..31): latched, tick, value and threshold."""
         return self.command(GetFault(self.next_cmd_id(), bit))  # type: ignore[return-value]
+
+    # ------------------------------------------------------------------ programs
+
+    def queue_segment(
+        self, target_deg: float, v_max_dps: float, dwell_s: float = 0.0
+    ) -> QueueStatus | Nack:
+        """Append a program block (docs/protocol.md section 4.5): to ``target_deg`` at
+        most at ``v_max_dps``, then rest ``dwell_s`` there."""
+        msg = QueueSegment(self.next_cmd_id(), target_deg, v_max_dps, dwell_s)
+        return self.command(msg)  # type: ignore[return-value]
+
+    def queue_control(self, action: QueueAction, override_pct: float = 100.0) -> QueueStatus | Nack:
+        """Hold, resume, abort, override or just read the program queue."""
+        msg = QueueControl(self.next_cmd_id(), action, override_pct)
+        return self.command(msg)  # type: ignore[return-value]
+
+    def queue_status(self) -> QueueStatus | Nack:
+        return self.queue_control(QueueAction.STATUS)
+
+    def hold(self) -> QueueStatus | Nack:
+        """Feed hold: stop on the path, keep the program."""
+        return self.queue_control(QueueAction.HOLD)
+
+    def resume(self) -> QueueStatus | Nack:
+        return self.queue_control(QueueAction.RESUME)
+
+    def abort(self) -> QueueStatus | Nack:
+        """Stop and empty the program queue."""
+        return self.queue_control(QueueAction.ABORT)
+
+    def set_override(self, pct: float) -> QueueStatus | Nack:
+        """Speed override in percent (10..200) of the blocks not yet entered."""
+        return self.queue_control(QueueAction.OVERRIDE, pct)
+
+    def send_program(
+        self,
+        blocks: list[tuple[float, float, float]],
+        *,
+        poll_s: float = 0.05,
+        timeout_s: float = 600.0,
+    ) -> QueueStatus | Nack:
+        """Stream ``(target_deg, v_max_dps, dwell_s)`` blocks with flow control: send while
+        the board reports free slots, else poll its queue every ``poll_s`` (receiving
+        telemetry in between). Returns the last ``QueueStatus``, or the first ``Nack`` (the
+        blocks after it are not sent). ``LinkTimeout`` after ``timeout_s`` of wall time
+        without a free slot."""
+        free = 0
+        last: QueueStatus | Nack = self.queue_status()
+        if isinstance(last, Nack):
+            return last
+        free = last.free_slots
+        end_wall_s = time.monotonic() + timeout_s
+        for target, v_max, dwell in blocks:
+            while free == 0:
+                if time.monotonic() > end_wall_s:
+                    raise LinkTimeout(f"the program queue stayed full for {timeout_s:g} s")
+                self.collect(poll_s)
+                last = self.queue_status()
+                if isinstance(last, Nack):
+                    return last
+                free = last.free_slots
+            last = self.queue_segment(target, v_max, dwell)
+            if isinstance(last, Nack):
+                return last
+            free = last.free_slots
+            end_wall_s = time.monotonic() + timeout_s
+        return last
 
     def wait_status(
         self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05

@@ -48,6 +48,11 @@ __all__ = [
     "NackCode",
     "NO_FIELD",
     "Profile",
+    "QueueAction",
+    "QueueControl",
+    "QueueSegment",
+    "QueueState",
+    "QueueStatus",
     "PROTOCOL_VERSION",
     "PROTOCOL_VERSION_MIN",
     "SetEnable",
@@ -84,6 +89,8 @@ class MsgType(IntEnum):
     GET_STATUS = 0x0B
     SET_TELEMETRY = 0x0C
     GET_FAULT = 0x0D
+    QUEUE_SEGMENT = 0x0E
+    QUEUE_CONTROL = 0x0F
     HELLO_REPLY = 0x81
     TELEMETRY = 0x82
     ACK = 0x83
@@ -94,6 +101,7 @@ class MsgType(IntEnum):
     STATUS = 0x88
     BOARD_HEARTBEAT = 0x89
     FAULT_INFO = 0x8A
+    QUEUE_STATUS = 0x8B
 
 
 class Profile(IntEnum):
@@ -131,6 +139,25 @@ class NackCode(IntEnum):
     TOO_LOW = 13  # field < limit
     BUSY = 14  # not now: e.g. a Move changing the profile kind while moving
     TRAVEL = 15  # the trajectory asked for would leave the travel (limit = the end crossed)
+    QUEUE_FULL = 16  # the program queue has no free slot (limit = its capacity)
+
+
+class QueueAction(IntEnum):
+    """What a ``QueueControl`` does to the board's program queue."""
+
+    STATUS = 0  # nothing: answer the queue's state
+    HOLD = 1  # feed hold: stop on the path, keep the blocks not reached
+    RESUME = 2  # go on from where the hold stopped
+    ABORT = 3  # stop and empty the queue
+    OVERRIDE = 4  # set the speed override to override_pct
+
+
+class QueueState(IntEnum):
+    """State of the program queue (``QueueStatus.state``)."""
+
+    EMPTY = 0  # no block held
+    RUNNING = 1  # executing (or at rest at the end of what it holds, waiting for more)
+    HELD = 2  # feed hold: stopping or stopped, blocks kept
 
 
 #: ``Nack.field`` when no single field is at fault (the whole command was refused).
@@ -359,6 +386,32 @@ class GetFault:
     session: int = 0
 
 
+@dataclass(frozen=True, slots=True)
+class QueueSegment:
+    """Append a block to the program queue: go to ``target_deg`` at most at ``v_max_dps``
+    (the board's acceleration limit), then rest ``dwell_s`` there (0: pass through at
+    speed if the path goes on in the same direction). Answered by ``QueueStatus``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.QUEUE_SEGMENT
+    cmd_id: int
+    target_deg: float
+    v_max_dps: float
+    dwell_s: float = 0.0
+    session: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class QueueControl:
+    """Feed hold, resume, abort, speed override (``override_pct``, OVERRIDE only) or just
+    the queue's state (``QueueAction``). Answered by ``QueueStatus``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.QUEUE_CONTROL
+    cmd_id: int
+    action: QueueAction
+    override_pct: float = 100.0
+    session: int = 0
+
+
 # ---------------------------------------------------------------- board -> PC
 
 
@@ -570,6 +623,20 @@ class FaultInfo:
     threshold: float
 
 
+@dataclass(frozen=True, slots=True)
+class QueueStatus:
+    """Answer to ``QueueSegment`` and ``QueueControl``: the program queue's state and its
+    flow control (``free_slots`` more blocks may be sent now)."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.QUEUE_STATUS
+    cmd_id: int
+    state: QueueState
+    free_slots: int
+    queued: int
+    done: int
+    override_pct: float
+
+
 # ---------------------------------------------------------------- decoder output
 
 
@@ -615,6 +682,9 @@ Message = (
     | Status
     | BoardHeartbeat
     | FaultInfo
+    | QueueSegment
+    | QueueControl
+    | QueueStatus
 )
 
 #: Message classes the PC sends to the board.
@@ -632,4 +702,6 @@ COMMAND_TYPES: tuple[type, ...] = (
     SetEnable,
     SetTelemetry,
     GetFault,
+    QueueSegment,
+    QueueControl,
 )

@@ -265,6 +265,7 @@ _NACK_WORDS = {
     NackCode.TOO_LOW: "a value is below its limit",
     NackCode.BUSY: "not while moving",
     NackCode.TRAVEL: "the trajectory would leave the travel",
+    NackCode.QUEUE_FULL: "the program queue is full",
 }
 
 

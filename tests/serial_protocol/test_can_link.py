@@ -37,6 +37,11 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueState,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -71,6 +76,9 @@ ONE_OF_EACH = [
     GetFault(19, 16, session=7),
     BoardHeartbeat(20, 7, State.IDLE, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9),
     FaultInfo(21, 16, True, 99, 1234.0, 1024.0),
+    QueueSegment(22, 135.0, 30.0, 0.5, session=7),
+    QueueControl(23, QueueAction.OVERRIDE, 150.0, session=7),
+    QueueStatus(24, QueueState.HELD, 30, 2, 12345, 150.0),
 ]
 
 

@@ -52,6 +52,11 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueState,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -154,6 +159,11 @@ BY_CLASS = {
         u32,
     ),
     FaultInfo: st.builds(FaultInfo, u16, u8, st.booleans(), u32, f32, f32),
+    QueueSegment: st.builds(QueueSegment, u16, pos, f32, f32, u16),
+    QueueControl: st.builds(QueueControl, u16, st.sampled_from(QueueAction), f32, u16),
+    QueueStatus: st.builds(
+        QueueStatus, u16, st.sampled_from(QueueState), u8, u8, u32, f32
+    ),
 }
 MESSAGES = st.one_of(*BY_CLASS.values())
 
