@@ -948,9 +948,7 @@ class Firmware:
         if action is QueueAction.STATUS or not prog.active():
             return None
         if action is QueueAction.ABORT:
-            refusal = self._cmd_stop(Stop(m.cmd_id, 0.0))  # Stop empties the queue
-            self.program.clear()
-            return refusal
+            return self._cmd_stop(Stop(m.cmd_id, 0.0))  # which empties the queue
         if action is QueueAction.HOLD:
             if prog.held or self._mode != "plan":
                 return None

@@ -49,6 +49,10 @@ from serial_protocol.messages import (
     MsgType,
     Nack,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -79,8 +83,10 @@ _ANSWER = {
     GetGains: (Gains,),
     GetLimits: (Limits,),
     GetFault: (FaultInfo, Nack),
+    QueueSegment: (QueueStatus, Nack),
+    QueueControl: (QueueStatus, Nack),
 }
-_REPLY_TYPES = (Ack, Nack, Status, Gains, Limits, HelloReply, FaultInfo)
+_REPLY_TYPES = (Ack, Nack, Status, Gains, Limits, HelloReply, FaultInfo, QueueStatus)
 #: The session the fuzzing PC opens; a few frames carry another one (or none).
 SESSION = 0x5EED
 _BOARD_TO_PC = tuple(t for t in MsgType if t >= 0x80)
@@ -123,8 +129,10 @@ def _random_message(rng: np.random.Generator, cmd_id: int, scales: dict[str, flo
                 kwargs[name] = _TARGET_SPECIAL[rng.integers(len(_TARGET_SPECIAL))]
             else:
                 kwargs[name] = round(float(rng.uniform(-1.3, 1.3) * scales["travel"]), 4)
-        elif name in ("profile", "loop"):
-            enum: type[IntEnum] = Profile if name == "profile" else _loop_enum()
+        elif name in ("profile", "loop", "action"):
+            enum: type[IntEnum] = {"profile": Profile, "action": QueueAction}.get(
+                name, _loop_enum()
+            )
             kwargs[name] = list(enum)[rng.integers(len(enum))]
         elif name == "enable":
             kwargs[name] = bool(rng.random() < 0.7)
@@ -169,7 +177,8 @@ def _snapshot(fw: Any) -> str:
         fw.v_max_dps, fw.a_max_dps2, fw.current_limit_a, fw.following_error_deg, fw._mode,
         fw._kind, fw._target_deg, fw._moving, fw._moved, fw._j_max, fw._move_limits,
         fw._v_clamp_dps, fw._decimation, fw._enabled.tolist(), fw._fault.tolist(), gains,
-        planners, fw.sp_pos_deg,
+        planners, fw.sp_pos_deg, id(fw.program), fw.program.held, fw.program.override_pct,
+        len(fw.program._pending), len(fw.program._committed),
     )  # fmt: skip
     return repr(parts)
 
