@@ -270,7 +270,7 @@ def test_streaming_small_window_can_always_stop_and_is_never_faster():
         # Whatever is pending can always be planned to a stop (plan_segment refuses l < l_i).
         speeds = q._speeds()
         assert speeds[-1] == 0.0
-        for k, (_, _, length) in enumerate(q._pending):
+        for k, (_, _, length, _, _) in enumerate(q._pending):
             plan_segment(length, speeds[k], speeds[k + 1], 8.0, A)
     released += q.flush()
     assert len(released) == len(batch.segments)
@@ -365,3 +365,24 @@ def test_property_streaming_window_is_valid_and_never_faster(points, window, v_m
         assert mine.profile.v1 <= theirs.profile.v1 * (1 + 1e-12) + 1e-15
         speed = mine.profile.v1
     assert speed == 0.0
+
+
+def test_streaming_per_segment_speed_limits_and_stops():
+    """Each segment's own limit caps its cruise and both its junctions; a stop flag makes
+    its end junction 0; preview() is what flush() releases, without releasing."""
+    q = LookaheadQueue(0.0, v_max=100.0, a_max=1000.0, period=0.002, window=16)
+    q.append(10.0, v_max=30.0)
+    q.append(20.0, v_max=60.0, stop=True)
+    q.append(40.0)
+    preview = q.preview()
+    assert len(q) == 3
+    segs = q.flush()
+    assert [s.profile.v1 for s in segs] == [p.v1 for p in preview]
+    assert segs[0].profile.v1 == 30.0  # min(30, 60) at the first junction
+    assert segs[1].profile.v1 == 0.0  # the stop
+    for seg, v_lim in zip(segs, (30.0, 60.0, 100.0), strict=True):
+        _, v, _ = seg.profile.at(np.linspace(0.0, seg.profile.duration, 200))
+        assert v.max() <= v_lim + 1e-9
+    assert segs[2].profile.p1 == 20.0
+    with pytest.raises(ValueError, match="v_max"):
+        q.append(50.0, v_max=float("nan"))
