@@ -658,9 +658,17 @@ class Firmware:
     def _handle(self, msg: Any) -> None:
         """One decoded frame: NACK what cannot be a command, check the session, then
         answer (queries), apply once (commands) or just feed the watchdog (heartbeats)."""
-        if isinstance(msg, Malformed):
+        if isinstance(msg, Malformed) and msg.msg_type < 0x80:
             self._counts["rx_malformed"] += 1
             self._queue(self._nack(msg, NackCode(msg.code)))
+            return
+        if isinstance(msg, Malformed):
+            # A type 0x80..0xFF is NOT_A_COMMAND whatever its payload (docs section 3: the
+            # board never decodes board -> PC payloads, so their length and enums are moot).
+            self._counts["rx_malformed"] += 1
+            self._queue(Nack(msg.cmd_id, msg.msg_type, NackCode.NOT_A_COMMAND))
+            self._counts["nacks"] += 1
+            self._counts["nack_NOT_A_COMMAND"] += 1
             return
         self._counts["rx_messages"] += 1
         if type(msg) not in _COMMAND_CLASSES:

@@ -211,6 +211,22 @@ def test_board_to_pc_types_are_nacked_not_a_command(make_bench):
     assert b.fw.counters["nack_NOT_A_COMMAND"] == 1
 
 
+@pytest.mark.parametrize(
+    "payload",
+    [b"\x02\x01", b"\x02\x01\x83\x63\x00\x00\x00\x00\x00", bytes(9)],
+    ids=["short", "undefined code", "zeros"],
+)
+def test_a_board_type_is_not_a_command_whatever_its_payload(make_bench, payload):
+    """docs section 3: the type byte decides first; a Nack sent to the board with a short
+    payload or an undefined NackCode is NOT_A_COMMAND too, not BAD_LENGTH/OUT_OF_RANGE
+    (the board never decodes board -> PC payloads; board_c/ does the same)."""
+    b = raw_bench(make_bench)
+    b.run(10, {2: [Hello(1, session=3)]}, rx_raw={5: frame.frame_raw(MsgType.NACK, payload, 0)})
+    (nack,) = answers(b, Nack)
+    assert nack == Nack(int.from_bytes(payload[:2], "little"), MsgType.NACK,
+                        NackCode.NOT_A_COMMAND)  # fmt: skip
+
+
 def test_board_heartbeat_carries_state_flags_and_exact_receive_counters(make_bench):
     b = raw_bench(make_bench)
     good = frame.encode(GetStatus(2, session=3), 1)
