@@ -11,6 +11,7 @@
  *   C                       counters: stats <frames> <header_errors> <crc_errors> <resyncs>
  *                             <bytes_dropped> <seq_gaps> <frames_missed>
  *                             <partial_discards> <held bytes>
+ *   K <hex>                 the checks of these bytes: crc <CRC-8/SMBUS> <CRC-32/ISO-HDLC>
  *   E <type> <seq> <hex>    frame a payload: prints the frame in hex
  *   M <type> <seq> <v...>   encode a board -> PC message from its fields in wire order
  *                           (integers; f32 fields as their bit patterns): prints the frame
@@ -234,6 +235,9 @@ int main(void)
                    (unsigned long)s->resyncs, (unsigned long)s->bytes_dropped,
                    (unsigned long)s->seq_gaps, (unsigned long)s->frames_missed,
                    (unsigned long)s->partial_discards, d.n);
+        } else if (strcmp(op, "K") == 0) {
+            size_t n = parse_hex(strtok(NULL, " \t\r\n"), data, sizeof data);
+            printf("crc %u %lu\n", tt_crc8(data, n), (unsigned long)tt_crc32(data, n));
         } else if (strcmp(op, "E") == 0) {
             unsigned type = (unsigned)atoi(strtok(NULL, " \t\r\n"));
             unsigned seq = (unsigned)atoi(strtok(NULL, " \t\r\n"));

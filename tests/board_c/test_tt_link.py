@@ -126,6 +126,12 @@ def test_an_over_long_payload_is_refused(harness):
     assert harness.one(f"E 130 0 {bytes(65).hex()}").startswith("error")
 
 
+def test_the_check_values_of_the_spec(harness):
+    """docs/protocol.md section 2: crc8("123456789") = 0xF4, crc32("123456789") =
+    0xCBF43926."""
+    assert harness.one(f"K {b'123456789'.hex()}") == f"crc {0xF4} {0xCBF43926}"
+
+
 # ------------------------------------------------------------------ receiving
 
 _frames = st.tuples(st.integers(0, 255), st.binary(max_size=40), st.integers(0, 255)).map(
