@@ -137,6 +137,10 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Seconds a write to a port may block before the replay stops (nobody reads the port).
+WRITE_TIMEOUT_S = 2.0
+
+
 def _sink(to: str, stack: Any) -> tuple[Callable[[bytes], Any], Callable[[], None]]:
     if to == "-":
         out = sys.stdout.buffer
@@ -145,7 +149,21 @@ def _sink(to: str, stack: Any) -> tuple[Callable[[bytes], Any], Callable[[], Non
 
     port = open_serial(to, 460800)  # LinkError (a TurntableError) names the URL
     stack.callback(port.close)
-    return port.write, port.flush
+    # A port nobody reads (loop://, a pty without a reader, flow control held) would block
+    # the write for ever; pyserial then raises SerialTimeoutException, an OSError.
+    port.write_timeout = WRITE_TIMEOUT_S
+
+    def write(data: bytes) -> None:
+        import queue
+
+        import serial
+
+        try:
+            port.write(data)
+        except queue.Full:  # pyserial's loop:// times out with its queue's exception
+            raise serial.SerialTimeoutException("Write timeout (nothing reads the port)") from None
+
+    return write, port.flush
 
 
 def _replay_can(args: argparse.Namespace) -> int:
