@@ -90,10 +90,14 @@ def files(tmp_path_factory) -> dict[str, list[str]]:
     (d / "latin1.toml").write_bytes(b'title = "b\xe9nch"\n')
     (d / "empty.bin").write_bytes(b"")
     (d / "folder").mkdir()
-    readme = str(ROOT / "README.md")
-    bench = str(ROOT / "bench_configs" / "paper_bench.toml")
+    # Copies only: a vector may write to any path it is given (--capture, -o, --out), and
+    # nothing of the repository may be overwritten by the fuzz.
+    readme = str(d / "README.md")
+    Path(readme).write_text((ROOT / "README.md").read_text(encoding="utf-8"), encoding="utf-8")
+    bench = str(d / "paper_bench.toml")
+    Path(bench).write_text((ROOT / "bench_configs" / "paper_bench.toml").read_text())
     missing = str(d / "missing.toml")
-    bad_dirs = [str(d / "folder"), "/proc/no/such", readme + "/x", str(ROOT)]
+    bad_dirs = [str(d / "folder"), "/proc/no/such", readme + "/x", str(d)]
     return {
         "experiment": [str(exp), str(exp), readme, missing, str(d / "latin1.toml"), str(d)],
         "bench": [bench, bench, str(exp), readme, missing, str(d / "latin1.toml")],
@@ -246,6 +250,15 @@ def recorders(monkeypatch):
     return calls
 
 
+def _repository_files() -> dict[Path, int]:
+    skip = {".git", "__pycache__", ".pytest_cache", ".ruff_cache", ".hypothesis"}
+    return {
+        p: p.stat().st_mtime_ns
+        for p in ROOT.rglob("*")
+        if p.is_file() and not skip.intersection(p.relative_to(ROOT).parts)
+    }
+
+
 def test_cli_fuzz(files, recorders, capfd, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # default output folders (tune_out, reproduce_out) land here
     monkeypatch.delenv("TURNTABLE_SIM_TRACEBACK", raising=False)
@@ -253,6 +266,7 @@ def test_cli_fuzz(files, recorders, capfd, monkeypatch, tmp_path):
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     rng = random.Random(SEED)
     names = sorted(sub.choices)
+    before = _repository_files()
     statuses: Counter[tuple[str, int]] = Counter()
     findings = []
     for k in range(N_VECTORS):
@@ -275,6 +289,7 @@ def test_cli_fuzz(files, recorders, capfd, monkeypatch, tmp_path):
     summary = ", ".join(f"{n}:{s}={c}" for (n, s), c in sorted(statuses.items()))
     print(f"cli fuzz: {N_VECTORS} vectors; {summary}; recorded {dict(recorders)}")
     assert not findings, "\n".join(findings[:15])
+    assert _repository_files() == before  # the fuzz wrote nothing into the repository
     # every subcommand was reached, and the fuzz ran real work, not only refusals
     assert {n for n, _ in statuses} == set(names)
     assert sum(c for (n, s), c in statuses.items() if s == 0) >= N_VECTORS // 10
