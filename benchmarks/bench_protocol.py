@@ -42,7 +42,11 @@ def bench_codec(n: int) -> list[tuple[str, float, str]]:
     msg = telemetry(1234)
     rows = [
         ("Telemetry(...) construction", best_us(lambda: telemetry(1234), n), "us"),
-        ("encode(Telemetry) -> 34 bytes", best_us(lambda: encode(msg, 7), n), "us"),
+        (
+            f"encode(Telemetry) -> {TELEMETRY_FRAME_BYTES} bytes",
+            best_us(lambda: encode(msg, 7), n),
+            "us",
+        ),
         (
             "encode_telemetry_fields(...)",
             best_us(
@@ -68,14 +72,15 @@ def bench_codec(n: int) -> list[tuple[str, float, str]]:
         Decoder().feed_columns(frames)
 
     reps = max(1, n // 2000)
+    kb = len(frames) // 1000
     per_tick_us = best_us(per_tick, reps) / 1000
     bulk_us = best_us(bulk, reps) / 1000
     columns_us = best_us(bulk_columns, reps) / 1000
     rows += [
         ("decode, one frame per feed()", per_tick_us, "us/frame"),
         ("decode throughput, one frame per feed()", 1e6 / per_tick_us, "frames/s"),
-        ("decode throughput, 34 kB per feed()", 1e6 / bulk_us, "frames/s"),
-        ("decode throughput, 34 kB per feed_columns()", 1e6 / columns_us, "frames/s"),
+        (f"decode throughput, {kb} kB per feed()", 1e6 / bulk_us, "frames/s"),
+        (f"decode throughput, {kb} kB per feed_columns()", 1e6 / columns_us, "frames/s"),
     ]
     faults = FaultInjection(bit_flip_rate=1e-3, drop_rate=1e-3, insert_rate=1e-3, burst_rate=1e-3)
     uart = EmulatedUart(460800, 1 << 22, faults, seed=1)
@@ -103,7 +108,8 @@ def bench_uart(n: int) -> list[tuple[str, float, str]]:
             uart.write(frame)
             uart.advance(TICK_S)
 
-        out.append((f"UART write(34 B) + advance(2 ms), {label}", best_us(tick, n), "us/tick"))
+        out.append((f"UART write({len(frame)} B) + advance(2 ms), {label}", best_us(tick, n),
+                    "us/tick"))  # fmt: skip
     return out
 
 
@@ -111,14 +117,18 @@ def bench_simulation(ticks: int, repeats: int) -> tuple[float, float, float] | N
     """Wall time of one simulated tick without and with the PC-side decode, and the
     telemetry frames per tick of that run."""
     try:
-        from serial_protocol.messages import Move, SetEnable
+        from serial_protocol.messages import Hello, Move, SetEnable
         from sim.config import load_bench
         from sim.loop import Simulation
     except ImportError as exc:
         print(f"(simulation not available: {exc})", file=sys.stderr)
         return None
     bench = load_bench(Path(__file__).resolve().parents[1] / "bench_configs" / "paper_bench.toml")
-    start = encode(SetEnable(1, True), 0) + encode(Move(2, 3000.0, 990.0, 148.0), 1)
+    start = (
+        encode(Hello(1, session=1), 0)
+        + encode(SetEnable(2, True, session=1), 1)
+        + encode(Move(3, 3000.0, 990.0, 148.0, session=1), 2)
+    )
 
     def one_run(decode: bool) -> tuple[float, int]:
         sim = Simulation(bench, seed=0)

@@ -38,20 +38,27 @@ def main() -> int:
     print(f"  (faults that left a frame unchanged, counted intact: {r.damaged_delivered_intact})")
     print(f"  delivered {r.delivered}; corrupted frames accepted: {r.accepted_corrupted}")
     print(f"  intact {r.intact}, recovered {r.recovered_intact} ({r.recovery:.6%})")
+    before = {}
+    for k in r.lost_intact:  # what happened to the frame before each lost intact one
+        kind = r.kind_of[k - 1] if k else None
+        before[kind] = before.get(kind, 0) + 1
+    print(f"  the frame before each lost intact frame was damaged by: {before}")
     print(f"  decoder counters:   {r.counters}")
     same = r.counters == r.reference_counters
     print(f"  reference receiver: {'identical' if same else r.reference_counters}")
     for p in r.problems:
         print(f"  PROBLEM: {p}")
-    print(f"residual undetected errors, {args.residual} damaged frames per kind:")
-    print("  kind       damaged   CRC-32 corrupt  CRC-16 corrupt   benign (32 / 16)")
+    if args.residual <= 0:
+        return 1 if r.problems else 0
+    print(f"residual undetected errors, {args.residual} frames damaged per kind:")
+    print("  kind        CRC-32: damaged  corrupt  benign    CRC-16: damaged  corrupt  benign")
     for kind in FAULT_KINDS:
         t = time.perf_counter()
-        n, c32, c16, b32, b16 = crc_residual(args.residual, args.seed + 7, kind)
+        c = crc_residual(args.residual, args.seed + 7, kind)
         dt = time.perf_counter() - t
         print(
-            f"  {kind:<10} {n:>8}   {c32:>6} ({c32 / n:.1e})   {c16:>6} ({c16 / n:.1e})   "
-            f"{b32} / {b16}   [{dt:.0f} s]"
+            f"  {kind:<10} {c['damaged32']:>15} {c['corrupt32']:>8} {c['benign32']:>7}"
+            f" {c['damaged16']:>16} {c['corrupt16']:>8} {c['benign16']:>7}   [{dt:.0f} s]"
         )
     print(f"load average at end: {os.getloadavg()[0]:.1f}")
     return 1 if r.problems else 0

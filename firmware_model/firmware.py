@@ -116,7 +116,8 @@ _MUTATING = (
 MIN_POSITIVE = 1e-3
 #: Longest dwell of a program block (s).
 MAX_DWELL_S = 3600.0
-#: Bytes the board's receive ring holds per servo tick; more is lost and counted.
+#: Smallest receive ring of the board (bytes per servo tick); at high baud rates the ring
+#: holds two ticks' worth of the line. More in one tick is lost and counted.
 RX_BUFFER_BYTES = 256
 #: Bit t set: command type t is handled (HelloReply.command_mask).
 COMMAND_MASK = sum(1 << int(cls.MSG_TYPE) for cls in COMMAND_TYPES)
@@ -148,9 +149,12 @@ class Firmware:
         tick: servo ticks done.
         counters: what happened on the link and in the command handler (never silent):
             ``rx_messages, rx_malformed, commands_applied, duplicates, nacks, nack_<CODE>,
-            faults, fault_<NAME>, tx_frames, tx_bytes, tx_telemetry_dropped,
-            tx_replies_dropped, telemetry_decimation``.
+            sessions, heartbeats, faults, fault_<NAME>, tx_frames, tx_bytes,
+            tx_telemetry_dropped, tx_replies_dropped, telemetry_decimation``; the receive
+            side's are in ``link_status()`` (what ``BoardHeartbeat`` sends).
         decoder: the ``serial_protocol.frame.Decoder`` fed with the received bytes.
+        session: the session opened by the last ``Hello`` (0 = none yet); commands of any
+            other session are refused (docs/protocol.md section 5).
     """
 
     def __init__(
@@ -232,6 +236,7 @@ class Firmware:
         self._rx_overflow_bytes = 0
         tel = params.telemetry
         bytes_per_tick = tel.baud / 10.0 / params.servo.tick_hz
+        self._rx_ring_bytes = max(RX_BUFFER_BYTES, 2 * math.ceil(bytes_per_tick))
         budget = bytes_per_tick * (1.0 - tel.reply_reserve)
         self._auto_decimation = max(1, math.ceil(frame.TELEMETRY_FRAME_BYTES / budget))
         self._watchdog_ticks = round(params.safety.watchdog_s * params.servo.tick_hz)
@@ -617,10 +622,11 @@ class Firmware:
         if self.decoder._buf and self.tick - self._last_byte_tick >= self._silence_ticks:
             self._silence()
         self._last_byte_tick = self.tick
-        if len(rx_bytes) > RX_BUFFER_BYTES:
-            # The DMA ring holds RX_BUFFER_BYTES per tick: the rest is lost, counted.
-            self._rx_overflow_bytes += len(rx_bytes) - RX_BUFFER_BYTES
-            rx_bytes = rx_bytes[:RX_BUFFER_BYTES]
+        ring = self._rx_ring_bytes
+        if len(rx_bytes) > ring:
+            # The DMA ring holds that much per tick: the rest is lost, counted.
+            self._rx_overflow_bytes += len(rx_bytes) - ring
+            rx_bytes = rx_bytes[:ring]
         for msg in self.decoder.feed(rx_bytes):
             self._handle(msg)
 
@@ -722,7 +728,8 @@ class Firmware:
             cmd_id=msg.cmd_id, session=msg.session, protocol_version=PROTOCOL_VERSION,
             fw_major=major, fw_minor=minor, fw_patch=patch, tick_hz=round(p.servo.tick_hz),
             counts_per_rev=16384, command_mask=COMMAND_MASK,
-            max_payload_bytes=frame.MAX_PAYLOAD_BYTES, rx_buffer_bytes=RX_BUFFER_BYTES,
+            max_payload_bytes=frame.MAX_PAYLOAD_BYTES,
+            rx_buffer_bytes=min(65535, self._rx_ring_bytes),
             reply_queue_frames=p.telemetry.reply_queue_frames,
             telemetry_min_decimation=self._auto_decimation,
             heartbeat_ms=min(65535, round(p.telemetry.heartbeat_s * 1000)),

@@ -66,6 +66,8 @@ class SoakReport:
     counters: dict[str, int] = field(default_factory=dict)
     reference_counters: dict[str, int] = field(default_factory=dict)
     problems: list[str] = field(default_factory=list)
+    kind_of: list[str | None] = field(default_factory=list)  # per frame: its damage or None
+    lost_intact: list[int] = field(default_factory=list)  # indices of intact frames not seen
 
     @property
     def recovery(self) -> float:
@@ -151,6 +153,7 @@ def build_stream(
                 current += _between(kind, rng)
         if rng.random() < p_frame_fault:
             kind = FAULT_KINDS[rng.randrange(len(FAULT_KINDS))]
+            report.kind_of.append(kind)
             damaged = _damage(data, kind, rng)
             report.damaged_by_kind[kind] = report.damaged_by_kind.get(kind, 0) + 1
             if damaged == data:  # e.g. a duplicated byte that re-creates the same bytes
@@ -160,6 +163,7 @@ def build_stream(
                 intact.append(False)
             current += damaged
         else:
+            report.kind_of.append(None)
             intact.append(True)
             current += data
     segments.append(bytes(current))
@@ -169,44 +173,42 @@ def build_stream(
     return segments, sent, intact, report
 
 
-def crc_residual(n_frames: int, seed: int, kind: str) -> tuple[int, int, int, int, int]:
+def crc_residual(n_frames: int, seed: int, kind: str) -> dict[str, int]:
     """For ``n_frames`` random frames damaged by ``kind`` and followed on the line by the
-    start of another frame: how many pass a CRC-32 (v2) and a CRC-16/CCITT (v1) frame check,
-    read at the frame's start with the length its (possibly damaged) header claims.
+    start of another frame: how many pass a CRC-32 (v2) and a CRC-16/CCITT (v1) frame
+    check, read at the frame's start with the length its (possibly damaged) header claims.
 
-    Returns ``(damaged, crc32_corrupt, crc16_corrupt, crc32_benign, crc16_benign)``:
-    *corrupt* passes deliver a header or payload that differs from the one sent (an
-    undetected error); *benign* passes deliver the frame's own header and payload because
-    only its check field was hit (a lost check byte replaced by the next frame's first
-    byte, which then costs that next frame). The two checks see the same damage at the
-    same positions; only the check field differs (4 bytes of CRC-32 or 2 of CRC-16)."""
+    Returns counts per check (``32`` and ``16``): ``damaged`` frames (a fault that leaves
+    the bytes as they were is not counted), ``corrupt`` passes (a header or payload that
+    differs from the one sent: an undetected error) and ``benign`` passes (the frame's own
+    header and payload, only its check field hit: a lost check byte replaced by the next
+    frame's first byte, which then costs that next frame). Each frame is damaged in both
+    versions from the same random state; only the check field differs (4 or 2 bytes)."""
     rng = random.Random(seed)
-    damaged_n = pass32 = pass16 = benign32 = benign16 = 0
+    out = dict.fromkeys(("damaged32", "corrupt32", "benign32",
+                         "damaged16", "corrupt16", "benign16"), 0)  # fmt: skip
     for k in range(n_frames):
         msg = _message(k, rng)
         head = bytes((frame.payload_bytes(type(msg)), msg.MSG_TYPE, k & 0xFF))
         _, payload = frame.encode_payload(msg)
         body = head + bytes((frame.crc8(head),)) + payload
-        v2 = frame.SYNC + body + crc32(body).to_bytes(4, "little")
-        v1 = frame.SYNC + body + crc_hqx(body, 0xFFFF).to_bytes(2, "little")
+        sent = {
+            "32": frame.SYNC + body + crc32(body).to_bytes(4, "little"),
+            "16": frame.SYNC + body + crc_hqx(body, 0xFFFF).to_bytes(2, "little"),
+        }
         state = rng.getstate()
-        d2 = _damage(v2, kind, rng)
-        rng.setstate(state)  # the same damage (same positions) on the v1 frame
-        d1 = _damage(v1, kind, rng)
-        if d2 == v2:
-            continue
-        damaged_n += 1
         # On the line the next frame follows: a frame that lost bytes takes its first ones.
         following = frame.SYNC + bytes(rng.randrange(256) for _ in range(8))
-        got2 = _check(d2 + following, 4)
-        got1 = _check(d1 + following, 2)
-        if got2 is not None:
-            benign32 += got2 == body
-            pass32 += got2 != body
-        if got1 is not None:
-            benign16 += got1 == body
-            pass16 += got1 != body
-    return damaged_n, pass32, pass16, benign32, benign16
+        for name, data in sent.items():
+            rng.setstate(state)
+            damaged = _damage(data, kind, rng)
+            if damaged == data:
+                continue
+            out["damaged" + name] += 1
+            got = _check(damaged + following, 4 if name == "32" else 2)
+            if got is not None:
+                out[("benign" if got == body else "corrupt") + name] += 1
+    return out
 
 
 def _check(data: bytes, crc_bytes: int) -> bytes | None:
@@ -313,6 +315,9 @@ def run_soak(
     report.counters = dict(vars(decoder.stats()))
     report.reference_counters = reference_counters(segments)
     report.recovered_intact = sum(g and ok for g, ok in zip(got_frames, intact, strict=True))
+    report.lost_intact = [
+        k for k, (g, ok) in enumerate(zip(got_frames, intact, strict=True)) if ok and not g
+    ]
     if report.counters != report.reference_counters:
         report.problems.append(
             f"counters differ from the reference receiver: {report.counters} vs "
