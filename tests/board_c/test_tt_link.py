@@ -318,7 +318,7 @@ def test_the_conformance_frames(harness):
         out = harness.ask("R", f"F {raw.hex()}")
         (frame_line,) = [x for x in out if x.startswith("frame ")]
         _, msg_type, seq, payload = frame_line.split()
-        assert (int(msg_type), int(seq)) == (vector["type"], vector["seq"])
+        assert (int(msg_type), int(seq)) == (vector["type_byte"], vector["seq"])
         assert harness.one(f"E {msg_type} {seq} {payload}") == raw.hex()
 
 
@@ -328,7 +328,7 @@ def test_the_conformance_streams(harness):
     as the Python decoder gives."""
     for vector in _vectors()["streams"]:
         ops = [("F", bytes.fromhex(vector["hex"]))]
-        if vector.get("silence_after"):
+        if vector.get("flush"):
             ops.append(("S", b""))
         c_msgs, c_counters, _ = _c(harness, ops)
         py_msgs, py_counters = _python(ops)
