@@ -4,10 +4,12 @@ Fields are engineering units with the suffixes of ``firmware_model/units.py``; t
 (``serial_protocol/frame.py``) scales them to integers or float32 on the wire, as laid out in
 ``docs/protocol.md``. This module does no I/O and imports nothing of ours.
 
-Every command from the PC except ``Hello`` starts with ``cmd_id`` (u16, chosen by the PC):
+Every message from the PC starts with ``cmd_id`` (u16, chosen by the PC) and ``session``
+(u16, the session its ``Hello`` opened; in the dataclasses ``session`` is the last field):
 the board answers it with ``Ack``/``Nack`` (or with the requested data) carrying the same
-``cmd_id``, and answers a repeat of its last ``(cmd_id, type)`` again without applying it
-again, so a retry after a lost ACK is harmless.
+``cmd_id``, and answers a retry of the last command of the session (the same payload) again
+without applying it again, so a retry after a lost ACK is harmless (docs/protocol.md,
+section 5).
 
 Command fields that are rates, limits or gains travel as IEEE-754 float32 so that a PC can
 send NaN or infinity and the firmware can NACK them (``NackCode.NOT_FINITE``); positions

@@ -505,9 +505,9 @@ def test_corrupted_frames_are_never_accepted(ticks, data):
     corrupted = set()
     for index in data.draw(st.sets(st.integers(0, len(frames) - 1))):
         frm = frames[index]
-        # a burst of at most 16 bits: CRC-16/CCITT detects every such burst
+        # a burst of at most 32 bits: the CRC-32 detects every such burst
         first_bit = data.draw(st.integers(2 * 8, len(frm) * 8 - 1))
-        span = data.draw(st.integers(1, 16))
+        span = data.draw(st.integers(1, 32))
         pattern = data.draw(st.integers(1, (1 << span) - 1)) | 1 | (1 << (span - 1))
         for bit in range(span):
             if pattern >> bit & 1 and first_bit + bit < len(frm) * 8:
