@@ -60,7 +60,7 @@ def _plant_states(params: PlantParams, duty, enable, h_s: float = DT_S, sub: int
 
 def test_current_limitation_is_located_inside_the_step():
     # The chip's limitation forced to 3 A under the 5 A firmware limit: Fig. 6's step
-    # drives into it both ways. It used to reach 3.88 A / -3.46 A at the 2 ms samples (a
+    # drives into it both ways. It used to reach -3.46 A at the 2 ms samples (a
     # drive that turned back within the step left the end in the "on" mode).
     duty, enable, params, _ = _run_inputs("fig6", 4.0, **{"bridge.current_limit_a": 3.0})
     xs, _ = _plant_states(params, duty, enable)
