@@ -44,6 +44,11 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueAction,
+    QueueControl,
+    QueueSegment,
+    QueueState,
+    QueueStatus,
     SetEnable,
     SetGains,
     SetLimits,
@@ -103,9 +108,11 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("get_status", GetStatus(12, session=S), 12),
     ("set_telemetry", SetTelemetry(13, 2, session=S), 13),
     ("get_fault", GetFault(14, 0, session=S), 14),
+    ("queue_segment", QueueSegment(15, 1500.0, 300.0, 0.5, session=S), 15),
+    ("queue_control", QueueControl(16, QueueAction.OVERRIDE, 80.0, session=S), 16),
     (
         "hello_reply",
-        HelloReply(1, S, 2, 0, 1, 0, 500, 16384, 0x3FFE, 64, 256, 32, 1, 200, 500, 20, 460800),
+        HelloReply(1, S, 2, 0, 1, 0, 500, 16384, 0xFFFE, 64, 256, 32, 1, 200, 500, 20, 460800),
         0,
     ),  # fmt: skip
     (
@@ -140,6 +147,7 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
     ("board_heartbeat", BoardHeartbeat(100, S, State.IDLE, 0, 5, 1, 2, 30, 1, 0, 1, 2, 0), 16),
     ("fault_info", FaultInfo(14, 0, True, 40, 5.18, 4.0), 17),
+    ("queue_status", QueueStatus(16, QueueState.RUNNING, 30, 2, 5, 80.0), 18),
 ]
 
 
@@ -240,7 +248,7 @@ def exchanges() -> list[dict[str, Any]]:
         return {"send": _cmd(send, seq), "wait_ms": wait_ms, "expect": list(expect)}
 
     hello = step(Hello(1, 2, 2, session=S), _expect("HelloReply", cmd_id=1, session=S,
-                 protocol_version=2, command_mask=0x3FFE, max_payload_bytes=64,
+                 protocol_version=2, command_mask=0xFFFE, max_payload_bytes=64,
                  rx_silence_ms=20, telemetry_min_decimation=1), seq=0)  # fmt: skip
     head = bytes((frame.MAX_PAYLOAD_BYTES, 0x03, 0))
     fake = frame.SYNC + head + bytes((frame.crc8(head),))
