@@ -32,7 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from serial_protocol.frame import Decoder, encode  # noqa: E402
+from serial_protocol.frame import encode  # noqa: E402
 from serial_protocol.host import BoardClient  # noqa: E402
 from serial_protocol.messages import GetStatus  # noqa: E402
 from serial_protocol.transport import SerialLink  # noqa: E402

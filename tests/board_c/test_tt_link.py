@@ -22,6 +22,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from serial_protocol import messages
 from serial_protocol.frame import (
     MAX_PAYLOAD_BYTES,
     Decoder,
@@ -30,7 +31,6 @@ from serial_protocol.frame import (
     payload_size_of_type,
     wire_fields,
 )
-from serial_protocol import messages
 from serial_protocol.messages import Malformed, MsgType
 
 ROOT = Path(__file__).resolve().parents[2]
