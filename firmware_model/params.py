@@ -356,7 +356,8 @@ class TelemetryParams(_Checked):
     ``decimation`` is the requested rate (1 = every tick, 0 = off); the firmware raises it
     automatically when a telemetry frame per tick does not fit ``baud`` (8N1, 10 bits per
     byte) with ``reply_reserve`` of the link kept free for replies. ``heartbeat_s`` is the
-    period of the board's ``BoardHeartbeat`` (0 = none).
+    period of the board's ``BoardHeartbeat`` (0 = none, otherwise at least one servo tick; it is
+    rounded to whole ticks).
     """
 
     decimation: int = _f(1, _irng(0, 65535))
@@ -400,6 +401,16 @@ class FirmwareParams:
                 "watchdog_s",
                 watchdog_s,
                 f"must be 0 (off) or longer than one servo tick ({self.servo.dt_s:g} s at "
+                f"servo.tick_hz = {self.servo.tick_hz:g})",
+            )
+        # The board heartbeat is counted in whole ticks too: below one tick it would round
+        # to 0 ticks, which is "none" — a heartbeat asked for and silently never sent.
+        heartbeat_s = self.telemetry.heartbeat_s
+        if heartbeat_s != 0.0 and not heartbeat_s >= self.servo.dt_s:
+            _fail(
+                "heartbeat_s",
+                heartbeat_s,
+                f"must be 0 (none) or at least one servo tick ({self.servo.dt_s:g} s at "
                 f"servo.tick_hz = {self.servo.tick_hz:g})",
             )
         # An encoder can only be unwrapped if the motor turns < half a revolution per tick

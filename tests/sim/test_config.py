@@ -357,6 +357,10 @@ def test_hard_coded_values_are_refused_as_simulation_overrides_too():
             [f"fifo_bytes = {LARGEST_FRAME - 1}", f"({LARGEST_FRAME} bytes, {LARGEST_NAME})"],
         ),
         ("[uart]\nfifo_bytes = 16\n", ["[uart] fifo_bytes = 16", "largest frame"]),
+        (
+            "[telemetry]\nheartbeat_s = 0.0005\n",
+            ["[telemetry] heartbeat_s = 0.0005", "at least one servo tick (0.002 s"],
+        ),
         ("[motor]\nr_ohm = 1e400\n", ["[motor] r_ohm = inf", "finite"]),
         (
             "[belt]\nsmall_teeth = 100000000000000000000\n",
@@ -367,6 +371,12 @@ def test_hard_coded_values_are_refused_as_simulation_overrides_too():
 def test_sizes_that_cannot_work_are_refused(tmp_path, extra, parts):
     f = _exp(tmp_path, GOOD_HEAD + extra)
     assert "exp.toml" in _one_line(lambda: load_experiment(f), *parts)
+
+
+def test_heartbeat_none_or_at_least_a_tick_is_accepted(tmp_path):
+    for value in ("0.0", "0.002", "0.25"):
+        f = _exp(tmp_path, GOOD_HEAD + f"[telemetry]\nheartbeat_s = {value}\n")
+        assert load_experiment(f).bench.firmware.telemetry.heartbeat_s == float(value)
 
 
 def test_watchdog_off_or_longer_than_a_tick_is_accepted(tmp_path):
