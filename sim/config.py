@@ -248,6 +248,15 @@ def _coerce(value: Any, hint: Any) -> Any:
 #: what cannot be computed (tests and studies may build extreme plants in code).
 SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("supply", "voltage_v"): (5.5, 27.8, "the BTN7971B's operating supply range"),
+    ("supply", "source_resistance_ohm"): (1e-4, 10.0, "a supply's output and leads"),
+    ("supply", "bulk_capacitance_uf"): (1.0, 1e6, "a bus capacitor bank"),
+    ("supply", "logic_load_a"): (0.0, 5.0, "the logic's draw"),
+    ("supply", "brake_resistor_ohm"): (0.0, 1e4, "a brake resistor"),
+    ("supply", "brake_on_v"): (5.5, 60.0, "a brake chopper's threshold"),
+    ("bridge", "ov_lockout_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
+    ("bridge", "ov_release_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
+    ("bridge", "uv_lockout_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),
+    ("bridge", "uv_release_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),
     ("bridge", "r_on_path_ohm"): (0.0, 10.0, "a bridge path, not a resistor bank"),
     ("bridge", "timer_clock_hz"): (1e6, 72e6, "the STM32F103's timer clock"),
     ("bridge", "pwm_hz"): (100.0, 100e3, "a PWM the BTN7971B can switch"),

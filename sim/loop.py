@@ -47,6 +47,7 @@ from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
+from sim.supply import Bus, step_period
 
 __all__ = [
     "LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run", "warm_up",
@@ -62,6 +63,7 @@ PLANT_FIELDS = (
     "motor_pos_rad",
     "current_a",
     "voltage_v",
+    "bus_v",
 )
 LOG_FIELDS = ("t_s",) + FW_FIELDS + PLANT_FIELDS
 _INT_FIELDS = ("state", "fault")
@@ -78,7 +80,9 @@ class RunLog:
     computed in tick k from those samples; ``voltage_v`` is what the bridge applied during
     the tick (the last current-loop period of it). Axis angles (gearmotor output) in degrees unless
     named ``platter_`` or ``motor_``. ``voltage_v`` is the bridge's average output
-    ``duty * V_supply`` (0 while disabled). ``current_a`` is the true armature current,
+    ``duty * V_bus`` (0 while disabled or locked out), ``bus_v`` the bus voltage at the
+    sampling instant (the supply's voltage without ``[supply] bus_model``). ``current_a`` is
+    the true armature current,
     ``current_meas_a`` the firmware's signed reading of the IS pin.
     """
 
@@ -100,6 +104,7 @@ class RunLog:
     motor_pos_rad: np.ndarray
     current_a: np.ndarray
     voltage_v: np.ndarray
+    bus_v: np.ndarray
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -293,7 +298,14 @@ class Simulation:
         self._adc_row = 0
         self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
         self._n_total = plant.total_ratio
-        self.plant = Plant(plant, n, self.h_s, bench.loop.event_levels)
+        # With the bus model the plant steps sub-steps of a current-loop period (sim.supply):
+        # its tables are for the sub-step, located to the same finest step.
+        self.bus = Bus(plant, n, self.h_s)
+        sub_levels = self.bus.substeps.bit_length() - 1
+        self.plant = Plant(
+            plant, n, self.h_s / self.bus.substeps,
+            max(0, bench.loop.event_levels - sub_levels),
+        )  # fmt: skip
         self._x = np.zeros((n, 5))
         self._duty = np.zeros(n)
         self._enable = np.zeros(n, dtype=bool)
@@ -445,7 +457,7 @@ class Simulation:
     def _grow(self, min_cap: int = 0) -> None:
         cap = max(1024, 2 * self._cap, min_cap)
         n = self.n
-        for f in (*FW_FIELDS, "voltage_v"):
+        for f in (*FW_FIELDS, "voltage_v", "bus_v"):
             dtype = np.int64 if f in _INT_FIELDS else float
             new = np.empty((cap, n), dtype=dtype)  # row per tick: contiguous writes
             if f in self._arrays:
@@ -510,12 +522,15 @@ class Simulation:
         duty, enable = np.zeros(n), np.zeros(n, dtype=bool)
         if keep:
             arrays = self._arrays
-            logs = (self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"])
+            logs = (
+                self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
+                arrays["bus_v"],
+            )  # fmt: skip
         else:
             empty = np.empty((0, n))
             ints = np.empty((0, n), dtype=np.int64)
             logs = (
-                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty,
+                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty,
             )  # fmt: skip
         bridge_params = (self._arr_n, self._vs_n)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n)
@@ -537,7 +552,7 @@ class Simulation:
             )  # fmt: skip
             plant_args = (
                 plant._last_mech, plant._group, plant._slots, plant._phis, plant._rates,
-                plant._consts, plant.event_levels, plant.split_budget,
+                plant._consts, plant.event_levels, plant.split_budget, self.bus.kernel_args(),
             )  # fmt: skip
             fw_args = (
                 fw._fs, fw._fi, fw._enabled, fw._fault, fw._oc_ticks, fw._prof, en_now,
@@ -612,6 +627,34 @@ class Simulation:
         plant._last_x = x0 if ctx[st.CX_KNOWN] else plant._last_x
         self._duty, self._enable = duty.copy(), enable.copy()
 
+    @property
+    def bus_v(self) -> np.ndarray:
+        """The bus voltage (the bulk capacitor's) now, ``(N,)`` (V): the supply voltage
+        without the bus model."""
+        return self.bus.v.copy() if self.bus.on else self._vs_n.copy()
+
+    def _plant_period(self, x: np.ndarray, d: np.ndarray, en: np.ndarray) -> np.ndarray:
+        """One current-loop period of the plant with ``(d, en)`` held (``sim.supply.
+        step_period``, the compiled tick's plant stage); returns the new states."""
+        plant = self.plant
+        if not self.bus.on:
+            return plant.update(0.0, x, (d, en))
+        xn = np.empty_like(x)
+        known = x is plant._last_x
+        start = 0
+        while True:
+            start, events, group, need = step_period(
+                x, xn, d, en, plant._last_mech, known, start, plant._group, plant._slots,
+                plant._phis, plant._rates, plant._consts, plant.event_levels,
+                plant.split_budget, self.bus.kernel_args(), self._volt, self._sense_sign,
+            )  # fmt: skip
+            plant.n_events += events
+            if need < 0:
+                break
+            plant._load(group, need)
+        plant._last_x = xn
+        return xn
+
     def _step(self) -> None:
         """One servo tick (the module docstring's order)."""
         fw = self.fw
@@ -624,6 +667,7 @@ class Simulation:
                 self._grow()
             # The plant state at the sampling instant, where the firmware sees it.
             self._xlog[k] = x
+            self._arrays["bus_v"][k] = self.bus_v
         counts = self.encoder.read(x)
         tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
                            self.uart_tx.free)  # fmt: skip
@@ -655,7 +699,7 @@ class Simulation:
             self._duty, self._enable = d, en
             if self._record_inputs:
                 self._inputs.append((d.copy(), en.copy()))
-            x = self.plant.update(t, x, (d, en))
+            x = self._plant_period(x, d, en)
             t += self.h_s
         self._x = x
         if keep:

@@ -8,6 +8,13 @@ so the oracle handles it as an event: it integrates with the power-flow side hel
 (``derivative(..., motor_dir=+-1)``) up to a terminal event at the zero crossing of the
 motor speed; if the state there sticks, with ``motor_dir=0`` until the motor torque leaves
 the band (two more events).
+
+With the bus model (``[supply] bus_model``, ``sim.supply``) the state has a sixth entry, the
+rail voltage, and the right-hand side is ``derivative_bus``: the bridge applies
+``duty * v`` (the rail as it is at every instant, not held), the rail takes the bridge's
+current ``duty * i`` (or ``-|i|`` through the diodes) as it is at every instant. The
+lock-out comparators are sampled at the ends of the same sub-steps as the simulation's
+(part of the model: their response time), so each sub-step is one held-input segment here.
 """
 
 from __future__ import annotations
@@ -19,9 +26,39 @@ from scipy.integrate import solve_ivp
 
 from sim.drivetrain import belt_torque_nm, stuck_at_rest
 from sim.params import PlantParams
-from sim.plant import derivative
+from sim.plant import _derivative_one, derivative
 
-__all__ = ["replay"]
+__all__ = ["derivative_bus", "replay"]
+
+
+def derivative_bus(
+    t: float,
+    y: np.ndarray,
+    u: tuple[float, bool],
+    params: PlantParams,
+    motor_dir: float | None = None,
+    locked: bool = False,
+    current_dir: float = 0.0,
+) -> np.ndarray:
+    """dy/dt of the plant with its rail, ``y`` = the 5 states of ``sim.plant`` and the rail
+    voltage (V); ``locked``: the bridge's outputs off (lock-out). The rail law is
+    ``sim.supply``'s without a brake chopper (the oracle refuses one). ``current_dir``
+    (+-1, outputs off) holds the diodes' side, as ``motor_dir`` the gearbox's, for an
+    integrator that stops at the current's zero as an event."""
+    duty, enable = u
+    sup, br = params.supply, params.bridge
+    v = float(y[5])
+    conducting = bool(enable) and not locked
+    dx = _derivative_one(y, duty, conducting, params, motor_dir, bus_v=v)
+    i = float(y[0])
+    if not conducting and current_dir:
+        r = params.motor.r_ohm + br.r_on_path_ohm
+        emf = params.motor.ke_v_s_rad * float(y[2])
+        dx[0] = (-current_dir * (v + 2.0 * br.diode_drop_v) - r * i - emf) / params.motor.l_h
+    i_out = duty * i if conducting else -abs(i)
+    i_sup = (sup.voltage_v - v) / sup.source_resistance_ohm if v < sup.voltage_v else 0.0
+    dv = (i_sup - i_out - sup.logic_load_a) / sup.capacitance_f
+    return np.append(dx, dv)
 
 
 def _belt(y: np.ndarray, params: PlantParams) -> float:
@@ -47,16 +84,37 @@ def replay(
 ) -> np.ndarray:
     """Integrate the plant through ``K`` inputs held ``h_s`` each (``duty``, ``enable``:
     ``(K,)``, as ``sim.loop.Simulation.inputs()`` records them) from ``x0`` (zeros by
-    default); returns the states ``(K // every, 5)`` after each ``every``-th input."""
-    y = np.zeros(5) if x0 is None else np.array(x0, dtype=float)
+    default); returns the states ``(K // every, 5)`` after each ``every``-th input.
+
+    With ``[supply] bus_model`` the states are ``(K // every, 6)``, the rail voltage last
+    (``x0`` of 5 entries starts the rail at the supply voltage), each input held over
+    ``bus_substeps`` sub-steps with the lock-out sampled at their ends."""
+    bus = bool(params.supply.bus_model)
+    n_x = 6 if bus else 5
+    y = np.zeros(n_x) if x0 is None else np.array(x0, dtype=float)
+    if bus:
+        if params.supply.brake_resistor_ohm > 0:
+            raise ValueError("brake_resistor_ohm > 0: the oracle has no brake chopper")
+        if y.shape[0] == 5:
+            y = np.append(y, params.supply.voltage_v)
+        if x0 is None:
+            y[5] = params.supply.voltage_v
+    sub = int(params.supply.bus_substeps) if bus else 1
+    br = params.bridge
+    locked = False
+    rhs = derivative_bus if bus else derivative
     stuck = False
     side = 0.0
     kt = params.motor.kt_nm_a
     out = []
-    for k in range(len(duty)):
+    for kk in range(len(duty) * sub):
+        k = kk // sub
         u = (float(duty[k]), bool(enable[k]))
-        t, t_end = k * h_s, (k + 1) * h_s
+        t, t_end = kk * h_s / sub, (kk + 1) * h_s / sub
         while t < t_end:
+            outputs_off = not u[1] or locked
+            i_dir = math.copysign(1.0, y[0]) if outputs_off and y[0] != 0.0 else 0.0
+            extra = (locked, i_dir) if bus else ()
             if stuck:
 
                 def leave_lo(_t, s, p=params):
@@ -71,7 +129,7 @@ def replay(
             else:
                 w = y[2]
                 if w == 0.0:
-                    w = derivative(t, y, u, params)[2]
+                    w = rhs(t, y, u, params, None, *extra)[2]
                 side = math.copysign(1.0, w) if w else 1.0
 
                 def zero_speed(_t, s):
@@ -80,15 +138,30 @@ def replay(
                 zero_speed.terminal = True
                 zero_speed.direction = -side
                 events = [zero_speed]
+            if bus and i_dir:
+                # Freewheeling through the diodes, the current stops at zero (the diodes
+                # block): an event, or the integrator chatters across the switch.
+                def zero_current(_t, s):
+                    return s[0]
+
+                zero_current.terminal = True
+                zero_current.direction = -i_dir
+                events = [*events, zero_current]
             sol = solve_ivp(
-                lambda tt, s, u=u, d=0.0 if stuck else side: derivative(tt, s, u, params, d),
+                lambda tt, s, u=u, d=0.0 if stuck else side, x=extra: rhs(tt, s, u, params, d, *x),
                 (t, t_end), y, method="DOP853", rtol=rtol, atol=atol, events=events,
             )  # fmt: skip
+            if sol.status < 0:
+                raise RuntimeError(f"solve_ivp failed at t = {t:.9f} s: {sol.message}")
             if sol.status != 1:
                 y, t = sol.y[:, -1], t_end
                 continue
             hit = next(j for j, te in enumerate(sol.t_events) if len(te))
             t_hit, y = float(sol.t_events[hit][0]), sol.y_events[hit][0].copy()
+            if events[hit].__name__ == "zero_current":
+                y[0] = 0.0
+                t = t_hit
+                continue
             if stuck:
                 stuck = False  # the torque left the band: the motor turns again
             else:
@@ -96,11 +169,17 @@ def replay(
                 stuck = stuck_at_rest(kt * y[0], _belt(y, params), params)
             if t_hit <= t:  # an event at the start (at rest with no force): step over it
                 sol = solve_ivp(
-                    lambda tt, s, u=u: derivative(tt, s, u, params), (t, t_end), y,
+                    lambda tt, s, u=u, x=extra: rhs(tt, s, u, params, None, *x), (t, t_end), y,
                     method="DOP853", rtol=rtol, atol=atol,
                 )  # fmt: skip
                 y, t_hit = sol.y[:, -1], t_end
             t = t_hit
-        if (k + 1) % every == 0:
+        if bus:  # the lock-out comparators at the sub-step's end (sim.supply.step_period)
+            v = y[5]
+            if locked:
+                locked = not (br.uv_release_v < v < br.ov_release_v)
+            else:
+                locked = v >= br.ov_lockout_v or v <= br.uv_lockout_v
+        if (kk + 1) % (every * sub) == 0:
             out.append(y.copy())
     return np.array(out)

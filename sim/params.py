@@ -66,12 +66,27 @@ def _non_negative(obj: Any, *names: str) -> None:
 
 @dataclass(frozen=True)
 class SupplyParams:
-    """The 24 V switching supply (seed 000: 220 V -> 24 V), taken as stiff."""
+    """The 24 V switching supply (seed 000: 220 V -> 24 V) and the bridge's bus.
+
+    ``bus_model = false`` (the default) takes the supply as stiff: the bridge always sees
+    ``voltage_v``. ``true`` models the bus (``sim.supply``): a supply that cannot sink
+    current (its output diode), with its source resistance, feeding the bulk capacitor;
+    braking returns energy into the capacitor and lifts the bus, up to the BTN7971B's
+    over-voltage lock-out (``[bridge] ov_lockout_v``) unless a brake chopper takes it.
+    """
 
     voltage_v: float = 24.0
+    bus_model: bool = False
+    source_resistance_ohm: float = 0.05
+    bulk_capacitance_uf: float = 2200.0
+    logic_load_a: float = 0.04
+    brake_resistor_ohm: float = 0.0
+    brake_on_v: float = 26.5
+    bus_substeps: int = 16
 
     def __post_init__(self) -> None:
-        _positive(self, "voltage_v")
+        _positive(self, "voltage_v", "source_resistance_ohm", "bulk_capacitance_uf")
+        _non_negative(self, "logic_load_a", "brake_resistor_ohm")
         # The BTN7971B locks out above 27.8 V (datasheet V_OV(OFF) min).
         _check(
             self,
@@ -79,6 +94,32 @@ class SupplyParams:
             bool(np.all(np.asarray(self.voltage_v) < 27.8)),
             "above the BTN7971B over-voltage lock-out (27.8 V)",
         )
+        _check(self, "bus_model", isinstance(self.bus_model, bool), "must be true or false")
+        _check(
+            self,
+            "bus_substeps",
+            isinstance(self.bus_substeps, int)
+            and not isinstance(self.bus_substeps, bool)
+            and self.bus_substeps in (1, 2, 4, 8, 16, 32, 64),
+            "must be a power of two in [1, 64]",
+        )
+        _check(
+            self,
+            "brake_on_v",
+            _finite(self.brake_on_v)
+            and bool(
+                np.all(
+                    (np.asarray(self.brake_on_v) > np.asarray(self.voltage_v))
+                    | (np.asarray(self.brake_resistor_ohm) == 0)
+                )
+            ),
+            "must be above the supply voltage (the chopper would burn the supply's power)",
+        )
+
+    @property
+    def capacitance_f(self) -> Any:
+        """The bulk capacitance in farads."""
+        return self.bulk_capacitance_uf * 1e-6
 
 
 @dataclass(frozen=True)
@@ -88,6 +129,9 @@ class BridgeParams:
     The averaged bridge applies ``duty * voltage`` (duty quantised to ``1/arr`` steps,
     ``arr = timer_clock_hz / pwm_hz`` for edge-aligned PWM). ``current_limit_a`` is the
     chip's own switched-mode current limitation (datasheet I_CL, not the firmware's 5 A).
+    ``ov_lockout_v`` / ``ov_release_v`` and ``uv_lockout_v`` / ``uv_release_v``: the chip's
+    over- and under-voltage lock-out with its hysteresis (outputs off above/below the first,
+    back on past the second); only the bus model (``[supply] bus_model``) can reach them.
     """
 
     r_on_path_ohm: float = 0.016
@@ -95,10 +139,28 @@ class BridgeParams:
     pwm_hz: float = 20e3
     current_limit_a: float = 70.0
     diode_drop_v: float = 0.8
+    ov_lockout_v: float = 28.0
+    ov_release_v: float = 27.8
+    uv_lockout_v: float = 4.5
+    uv_release_v: float = 5.5
 
     def __post_init__(self) -> None:
         _non_negative(self, "r_on_path_ohm", "diode_drop_v")
         _positive(self, "timer_clock_hz", "pwm_hz", "current_limit_a")
+        _positive(self, "ov_lockout_v", "ov_release_v", "uv_lockout_v", "uv_release_v")
+        _check(
+            self,
+            "ov_release_v",
+            bool(np.all(np.asarray(self.ov_release_v) <= self.ov_lockout_v)),
+            "must not be above ov_lockout_v (the lock-out's hysteresis)",
+        )
+        _check(
+            self,
+            "uv_release_v",
+            bool(np.all(np.asarray(self.uv_release_v) >= self.uv_lockout_v))
+            and bool(np.all(np.asarray(self.uv_release_v) < self.ov_release_v)),
+            "must lie between uv_lockout_v and ov_release_v",
+        )
         _check(
             self,
             "pwm_hz",

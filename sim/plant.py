@@ -94,6 +94,9 @@ class Coefficients:
     icl: Any
     vd2: Any
     inv_n: Any
+    # With the bus model (``sim.supply``) the diode modes take their voltage (V_bus + 2 V_f)
+    # from the input, as ``vd2 * u``, instead of the constant ``vd2``.
+    diode_in: bool = False
 
     @classmethod
     def from_params(cls, p: PlantParams) -> Coefficients:
@@ -126,6 +129,7 @@ class Coefficients:
             icl=f(p.bridge.current_limit_a),
             vd2=f(p.supply.voltage_v + 2.0 * p.bridge.diode_drop_v),
             inv_n=f(1.0 / (p.gearbox.ratio * p.belt.ratio)),
+            diode_in=bool(p.supply.bus_model),
         )
 
 
@@ -158,9 +162,15 @@ def affine(key: int, co: Coefficients) -> tuple[np.ndarray, np.ndarray, np.ndarr
     if bridge == B_ON:
         b[I_A] = co.vs / co.l
     elif bridge == B_DIODE_POS:
-        e[I_A] = -co.vd2 / co.l
+        if co.diode_in:
+            b[I_A] = -co.vd2 / co.l
+        else:
+            e[I_A] = -co.vd2 / co.l
     elif bridge == B_DIODE_NEG:
-        e[I_A] = co.vd2 / co.l
+        if co.diode_in:
+            b[I_A] = co.vd2 / co.l
+        else:
+            e[I_A] = co.vd2 / co.l
     a[POS, VEL] = 1.0
     # Belt torque on the platter, tau = kt_ twist + kwm w_m + kwp w_p + t0 (zero in the gap).
     if contact:
@@ -368,14 +378,20 @@ def _friction_one(w: float, tc: float, wb: float, ts: float, ws: float) -> float
 
 
 def _derivative_one(
-    x: np.ndarray, duty: float, enable: bool, params: PlantParams, motor_dir: float | None = None
+    x: np.ndarray,
+    duty: float,
+    enable: bool,
+    params: PlantParams,
+    motor_dir: float | None = None,
+    bus_v: float | None = None,
 ) -> np.ndarray:
     """``derivative`` for one state (5,) on Python floats: the same laws, ~10x faster for
-    ``solve_ivp``; the tests check it against the vectorised branch."""
+    ``solve_ivp``; the tests check it against the vectorised branch. ``bus_v``: the bridge's
+    rail (V) instead of the stiff supply (the bus model's oracle, ``sim.oracle``)."""
     m, pl, br = params.motor, params.platter, params.bridge
     n = params.total_ratio
-    vs = params.supply.voltage_v
-    i, _, w, tw, wp = (float(v) for v in x)
+    vs = params.supply.voltage_v if bus_v is None else bus_v
+    i, _, w, tw, wp = (float(v) for v in x[:5])
     emf = m.ke_v_s_rad * w
     r = m.r_ohm + br.r_on_path_ohm
     if enable:

@@ -12,7 +12,8 @@ of ``sim/loop.py``'s docstring, for N members:
    reply queued.
 4. ``CURRENT``, ``BRIDGE``, ``PLANT`` (``current_loop_multiple`` times): the ADC, the
    current loop and its over-current screen (``firmware_model.tick.current_stage``), the
-   bridge, the plant step (``sim.plant_kernel.step_members``).
+   bridge, the plant step (``sim.supply.step_period``: ``sim.plant_kernel.step_members``,
+   in sub-steps coupled to the bus with ``[supply] bus_model``).
 5. ``LOG``: the firmware's signals and the bridge voltage into the log row; the TX line
    shifts out one tick of bytes (``serial_protocol.uart.pace``).
 
@@ -66,7 +67,7 @@ from firmware_model.tick import (
 from serial_protocol import uart
 from sim.bridge import apply_bridge, read_adc
 from sim.encoder import _read
-from sim.plant_kernel import step_members
+from sim.supply import step_period
 
 __all__ = ["run_ticks"]
 
@@ -101,14 +102,15 @@ def run_ticks(
     ``fw = (fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags)``; ``sim = (x0, x1, dt_s,
     multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
     sense_sign, volt, duty, enable, counts, adc, bytes_per_s)``; ``plant = (keys, group,
-    slots, phis, rates, consts, levels, budget)``; ``logs = (xlog, signals (11 arrays of
-    (capacity, N)), voltage)``."""
+    slots, phis, rates, consts, levels, budget, bus)`` (``bus``: ``sim.supply.Bus``'s
+    arrays); ``logs = (xlog, signals (11 arrays of (capacity, N)), voltage, bus_v)``."""
     P, C, S, G, K = law
     fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags = fw
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
-    keys, group, slots, phis, rates, consts, levels, budget = plant
-    xlog, signals, voltage = logs
+    keys, group, slots, phis, rates, consts, levels, budget, bus = plant
+    xlog, signals, voltage, bus_log = logs
+    bus_v = bus[0]
     latency, offset, enc_noise, counts_per_rad, counts_per_rev, enc_inl = enc_params
     a_per_lsb, adc_noise = adc_params
     arr, supply_v = bridge_params
@@ -132,6 +134,10 @@ def run_ticks(
                 ctx[CX_ENC_ROW] += 1
             if keep:
                 xlog[k] = x
+                if bus_v.shape[0]:
+                    bus_log[k] = bus_v
+                else:
+                    bus_log[k] = supply_v
             _read(
                 x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
             )
@@ -205,9 +211,9 @@ def run_ticks(
                 stage = PLANT
                 ctx[CX_MEMBER] = 0
             if stage == PLANT:
-                start, events, g, need = step_members(
-                    x, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group, slots,
-                    phis, rates, consts, levels, budget, xn, keys,
+                start, events, g, need = step_period(
+                    x, xn, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group, slots,
+                    phis, rates, consts, levels, budget, bus, volt, sense_sign,
                 )  # fmt: skip
                 ctx[CX_EVENTS] += events
                 if need >= 0:

@@ -1,0 +1,177 @@
+"""The supply and bus model (issue 13 §2.1, ``sim.supply``): the rail's exact solution
+against its closed forms, the supply that cannot sink, the brake chopper, the BTN7971B's
+lock-out in the closed loop, the bus step against ``solve_ivp`` (``sim.oracle``), off is
+the stiff supply, one implementation for every N."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sim import loop
+from sim.oracle import replay
+from sim.params import SupplyParams
+from sim.reproduce import experiments
+from sim.supply import rail_advance
+
+C_F = 2200e-6
+VS, RS = 24.0, 0.05
+BUS = {"supply.bus_model": True}
+
+
+def _rail(v, i_out, h, rb=0.0, vb=26.5, c=C_F):
+    return rail_advance(v, i_out, h, VS, RS, c, rb, vb)
+
+
+def test_returned_charge_lifts_the_blocked_rail_linearly():
+    # Above the supply the diode blocks: the returned current only charges C.
+    h = 1e-3
+    v1 = _rail(VS, -2.5, h)
+    assert v1 == pytest.approx(VS + 2.5 * h / C_F, rel=1e-14)
+    # The energy balance: 1/2 C (v1^2 - v0^2) is the current times the mean voltage.
+    assert 0.5 * C_F * (v1**2 - VS**2) == pytest.approx(2.5 * 0.5 * (VS + v1) * h, rel=1e-12)
+    # Nothing drawn: a lifted rail stays lifted (the supply cannot sink it).
+    assert _rail(27.0, 0.0, 1.0) == 27.0
+
+
+def test_issue_13_figures_0_23_j_lift_2200_uf_to_28_v():
+    # 0.23 J returned at the braking's 64 W lifts 2,200 uF from 24 V to the 28 V lock-out:
+    # integrated through the rail at constant power, it takes E / P = 3.6 ms.
+    e_j = 0.5 * C_F * (28.0**2 - 24.0**2)
+    assert e_j == pytest.approx(0.2288, abs=1e-4)
+    v, t, h = VS, 0.0, 1e-6
+    while v < 28.0:
+        v = _rail(v, -64.0 / v, h)
+        t += h
+    assert t == pytest.approx(e_j / 64.0, rel=1e-3)
+
+
+def test_supply_droops_through_its_source_resistance():
+    tau = RS * C_F
+    assert _rail(VS, 5.0, 10.0) == pytest.approx(VS - RS * 5.0, abs=1e-12)
+    v_eq = VS - RS * 5.0
+    assert _rail(VS, 5.0, tau) == pytest.approx(v_eq + (VS - v_eq) * math.exp(-1.0), rel=1e-14)
+    # A lifted rail drawn on falls linearly to the supply, then the supply takes over.
+    t_fall = C_F * (26.0 - VS) / 2.0
+    expect = (VS - RS * 2.0) + RS * 2.0 * math.exp(-(1e-3) / tau)
+    assert _rail(26.0, 2.0, t_fall + 1e-3) == pytest.approx(expect, rel=1e-12)
+
+
+def test_brake_chopper_holds_its_threshold_or_is_overrun():
+    rb, vb = 10.0, 26.5
+    # 2 A returned < vb / rb = 2.65 A: the chopper holds the rail at vb.
+    assert _rail(VS, -2.0, 0.1, rb, vb) == vb
+    # 4 A returned: the resistor is on for good, the rail tends to 4 A * rb = 40 V.
+    t_reach = C_F * (vb - VS) / 4.0
+    tau = rb * C_F
+    expect = 40.0 + (vb - 40.0) * math.exp(-(5e-3) / tau)
+    assert _rail(VS, -4.0, t_reach + 5e-3, rb, vb) == pytest.approx(expect, rel=1e-12)
+    # Above the threshold with nothing returned, the resistor brings it down to vb.
+    assert _rail(30.0, 0.0, 1.0, rb, vb) == pytest.approx(vb, abs=1e-12)
+
+
+def _fig6(duration_s: float = 4.0, **overrides):
+    exp = experiments.with_duration(experiments.load("fig6"), duration_s)
+    return loop.run(exp, seed=0, overrides=overrides or None).log
+
+
+def test_fig6_braking_locks_the_bridge_out_and_a_brake_resistor_prevents_it():
+    stiff = _fig6()
+    bus = _fig6(**BUS)
+    braked = _fig6(**BUS, **{"supply.brake_resistor_ohm": 10.0})
+    assert np.all(stiff.bus_v == 24.0)  # off: the stiff supply
+    # Braking starts near 3.1 s; the bus reaches the 28 V lock-out within 10 ms of it.
+    t, v = bus.t_s, bus.bus_v
+    first = t[np.argmax(v >= 28.0)]
+    start = t[np.argmax(bus.current_a < -0.1)]
+    assert 0.0 < first - start < 0.010
+    assert v.max() < 28.5  # located to a 125 us sub-step, plus the diodes' return
+    # While locked out the bridge applies nothing although the firmware drives a duty.
+    out = (t > first) & (t < first + 0.01)
+    assert np.all(bus.voltage_v[out] == 0.0) and np.any(bus.duty[out] != 0.0)
+    assert bus.true_pos_deg.max() - 3000.0 > 5 * (stiff.true_pos_deg.max() - 3000.0)
+    # A 10 ohm chopper at 26.5 V holds the bus there and the step settles as stiff.
+    assert braked.bus_v.max() <= 26.5 + 1e-9
+    assert braked.bus_v.max() > 26.4
+    assert abs(braked.true_pos_deg[-1] - 3000.0) < 0.1
+    assert np.all(braked.voltage_v[braked.t_s > 0.01] != 0.0)  # never locked out
+
+
+def test_a_stiff_bus_is_the_stiff_supply():
+    # C -> infinity, R_s -> 0: the bus model tends to the stiff supply of bus_model = false.
+    stiff = _fig6()
+    big = _fig6(
+        **BUS,
+        **{
+            "supply.bulk_capacitance_uf": 1e6,
+            "supply.source_resistance_ohm": 1e-4,
+            "supply.logic_load_a": 0.0,
+        },
+    )
+    assert big.bus_v.max() < 24.25  # 5.2 J into 1 F
+    assert abs(big.true_pos_deg.max() - stiff.true_pos_deg.max()) < 1.0
+    np.testing.assert_allclose(big.true_pos_deg, stiff.true_pos_deg, atol=1.5)
+
+
+def test_bus_step_matches_solve_ivp_through_hard_braking():
+    # Fig. 6's braking from 3.0 s up to the lock-out (3.106 s): the bus rises 24 -> 28 V in
+    # 8 ms. Replayed from the simulation's state with its recorded duties through
+    # solve_ivp on the continuous model (the rail and the duty's product exact).
+    holder = {}
+
+    class Recording(loop.Simulation):
+        def __init__(self, *a, **k):
+            k["record_inputs"] = True
+            super().__init__(*a, **k)
+            holder["sim"] = self
+
+    saved = loop.Simulation
+    loop.Simulation = Recording
+    try:
+        exp = experiments.with_duration(experiments.load("fig6"), 3.106)
+        log = loop.run(exp, seed=0, overrides=BUS).log
+    finally:
+        loop.Simulation = saved
+    sim = holder["sim"]
+    duty, enable = sim.inputs()
+    k0, k1 = 1500, len(log)
+    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
+    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
+    assert log.bus_v[k1 - 1] > 26.0  # the window does reach the hard braking
+    assert np.abs(ref[:, 5] - log.bus_v[k0 + 1 : k1]).max() < 3e-3  # V (measured 1.3e-3)
+    assert np.abs(ref[:, 0] - log.current_a[k0 + 1 : k1]).max() < 4e-3  # A (1.7e-3)
+    rev = np.abs(ref[:, 1] - log.motor_pos_rad[k0 + 1 : k1]).max() / (2 * math.pi)
+    assert rev < 5e-6  # (1.9e-6; one encoder count is 6.1e-5 rev)
+
+
+def test_batch_members_are_the_one_axis_runs():
+    # Noise off: a batch draws its encoder noise for all members at once (another stream).
+    exp = experiments.with_duration(experiments.load("fig6"), 3.3)
+    caps = np.array([2200.0, 10000.0])
+    quiet = {**BUS, "encoder.noise_rms_lsb": 0.0}
+    both = loop.run(exp, seed=0, batch=2, overrides={**quiet, "supply.bulk_capacitance_uf": caps})
+    for j, cap in enumerate(caps):
+        one = loop.run(exp, seed=0, overrides={**quiet, "supply.bulk_capacitance_uf": cap}).log
+        member = both.log.member(j)
+        for name in ("bus_v", "current_a", "true_pos_deg", "voltage_v", "duty"):
+            np.testing.assert_array_equal(getattr(member, name), getattr(one, name), name)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "words"),
+    [
+        ("bus_substeps", 3, "power of two"),
+        ("bulk_capacitance_uf", 0.0, "> 0"),
+        ("bus_model", 1, "true or false"),
+        ("brake_on_v", 23.0, "above the supply"),
+    ],
+)
+def test_bad_supply_values_are_refused_in_one_line(key, value, words):
+    kwargs = {key: value}
+    if key == "brake_on_v":
+        kwargs["brake_resistor_ohm"] = 10.0
+    with pytest.raises(ValueError, match=words) as info:
+        SupplyParams(**kwargs)
+    assert "\n" not in str(info.value) and key in str(info.value)
