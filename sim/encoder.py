@@ -25,7 +25,9 @@ import numpy as np
 from sim.params import EncoderParams, per_member
 from sim.plant import POS, VEL
 
-__all__ = ["Encoder", "inl_counts", "inl_params"]
+__all__ = ["BLOCK", "Encoder", "inl_counts", "inl_params"]
+
+BLOCK = _BLOCK = 4096  # ticks of noise drawn at once (at most)
 
 
 class Encoder:
@@ -62,19 +64,22 @@ class Encoder:
             self._inl = inl_params(p, n)
         return (*self._params, self._counts_per_rad, self.counts_per_rev, self._inl)
 
-    def refill(self, n: int) -> None:
+    def refill(self, n: int, rows: int = _BLOCK) -> None:
         """Draw the next block of standard normals (a numpy call per read would cost more
-        than the read); ``block`` and ``row`` are the compiled loop's too."""
-        self.block = self.rng.standard_normal((_BLOCK, n))
+        than the read); ``block`` and ``row`` are the compiled loop's too. ``rows``: ticks
+        in the block; the generator's stream is the same whatever the blocks' sizes, so a
+        caller whose ``rng`` feeds nothing else may draw only the ticks it will run."""
+        self.block = self.rng.standard_normal((rows, n))
         self.row = 0
 
-    def read(self, x: np.ndarray) -> np.ndarray:
-        """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``."""
+    def read(self, x: np.ndarray, rows: int = _BLOCK) -> np.ndarray:
+        """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``;
+        ``rows``: the size of a block of draws it has to draw (``refill``)."""
         n = x.shape[0]
         params = self.kernel_params(n)
         if self._noisy:
             if self.row == self.block.shape[0]:
-                self.refill(n)
+                self.refill(n, rows)
             draw = self.block[self.row]
             self.row += 1
         else:
@@ -108,7 +113,6 @@ def inl_counts(theta_rad, a1, p1, a2, p2):
     return a1 * math.sin(theta_rad + p1) + a2 * math.sin(2.0 * theta_rad + p2)
 
 
-_BLOCK = 4096
 _NO_DRAW = np.empty(0)
 
 

@@ -44,7 +44,7 @@ from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
 from sim import tick as st
 from sim.bridge import apply_bridge, read_adc
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
-from sim.encoder import Encoder
+from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
 from sim.supply import Bus, step_period
@@ -293,6 +293,11 @@ class Simulation:
         self.encoder = Encoder(plant.encoder, self._rng)
         self._adc_full = (1 << plant.current_sense.adc_bits) - 1
         self._adc_noisy = bool(np.any(plant.current_sense.noise_rms_lsb))
+        # With one noise source, the generator feeds nothing else: its blocks may hold
+        # only the draws a run uses (the same stream; a short batch run would otherwise
+        # draw 4096 rows of N it never reads). With two, they alternate in whole blocks.
+        self._sole_noise = self.encoder.noisy != self._adc_noisy
+        self._noise_rows = BLOCK
         # ADC noise: standard normals drawn in blocks of 4096 periods x N, as the encoder's.
         self._adc_block = np.empty((0, n))
         self._adc_row = 0
@@ -477,11 +482,19 @@ class Simulation:
     def _adc_draw(self) -> np.ndarray:
         """The next row of ADC noise draws."""
         if self._adc_row == self._adc_block.shape[0]:
-            self._adc_block = self._rng.standard_normal((4096, self.n))
+            self._adc_block = self._rng.standard_normal((self._noise_rows, self.n))
             self._adc_row = 0
         row = self._adc_block[self._adc_row]
         self._adc_row += 1
         return row
+
+    def _rows(self, ticks: int) -> int:
+        """Rows of noise draws to draw for ``ticks`` more ticks (``_sole_noise``)."""
+        if not self._sole_noise:
+            return BLOCK
+        per_tick = self.multiple if self._adc_noisy else 1
+        # At least 64: a caller stepping a few ticks at a time (serve) draws rarely.
+        return min(BLOCK, max(64, ticks * per_tick))
 
     def _run_compiled(self, n_ticks: int) -> None:
         """``n_ticks`` ticks in the compiled tick (``sim.tick.run_ticks``), handling its
@@ -490,7 +503,9 @@ class Simulation:
         if n_ticks < 0:
             return
         if not fw._booted and n_ticks:  # the boot (the first reading): the firmware's Python
+            self._noise_rows = self._rows(n_ticks)
             self._step()
+            self._noise_rows = BLOCK
             n_ticks -= 1
         k_end = self.tick + n_ticks
         n = self.n
@@ -609,11 +624,12 @@ class Simulation:
             elif code == st.STOP_MODE:
                 plant._load(int(ctx[st.CX_NEED_GROUP]), int(ctx[st.CX_NEED_MODE]))
             elif code == st.STOP_NOISE:
+                rows = self._rows(k_end - int(ctx[st.CX_K]))
                 if ctx[st.CX_STAGE] == st.TOP:
-                    enc.refill(n)
+                    enc.refill(n, rows)
                     ctx[st.CX_ENC_ROW] = 0
                 else:
-                    self._adc_block = self._rng.standard_normal((4096, n))
+                    self._adc_block = self._rng.standard_normal((rows, n))
                     self._adc_row = 0
                     ctx[st.CX_ADC_ROW] = 0
             elif code == st.STOP_UART:
@@ -668,7 +684,7 @@ class Simulation:
             # The plant state at the sampling instant, where the firmware sees it.
             self._xlog[k] = x
             self._arrays["bus_v"][k] = self.bus_v
-        counts = self.encoder.read(x)
+        counts = self.encoder.read(x, self._noise_rows)
         tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
                            self.uart_tx.free)  # fmt: skip
         if tx:

@@ -2,6 +2,12 @@
 member's step (the recursion over halved sub-steps), ``step_members`` runs it for every
 member in one call. The one implementation for every N.
 
+``step_members`` takes the common case itself: a whole step in the start mode that ends in
+it and passes the excursion check (``step``'s first pass, the same operations) is accepted
+without ``step``'s sub-step stack; anything else goes to ``step`` from the start. Kernels use
+``error_model="numpy"``: no division-by-zero checks in the loops (no division here can be
+by zero on a valid bench; one would give inf/NaN instead of raising inside compiled code).
+
 The kernel is pure: the matrices come in as tables filled by ``Plant`` (a mode it has not
 seen yet is returned as ``need`` and the caller loads it and calls again), and the event
 count, the end mode and the new state go out as return values.
@@ -56,7 +62,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     return np.array(values)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def key(i, w, tw, wp, duty, enable, kc):
     """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
     power-flow modes)."""
@@ -92,7 +98,7 @@ def key(i, w, tw, wp, duty, enable, kc):
     return (((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _friction_region(v, band, stribeck):
     """0..4: below -stribeck, falling (negative side), band, falling (positive), above."""
     if v > band:
@@ -102,7 +108,7 @@ def _friction_region(v, band, stribeck):
     return 2
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _belt_torque(tw, rate, kc):
     """Belt torque on the platter (N*m) at twist ``tw`` and twist rate ``rate``."""
     half = kc[_HALF]
@@ -113,7 +119,7 @@ def _belt_torque(tw, rate, kc):
     return 0.0
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _flow_at_rest(torque_nm, tb, n, eta):
     """Power-flow mode of a motor at rest (w_m = 0) with belt torque ``tb`` != 0.
 
@@ -129,12 +135,12 @@ def _flow_at_rest(torque_nm, tb, n, eta):
     return 0 if (torque_nm > hi) == (tb > 0) else 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _region(v, edge):
     return 2 if v > edge else (0 if v < -edge else 1)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def hermite_leaves(p0, p1, m0, m1, edge):
     """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has
     an interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
@@ -178,7 +184,7 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
@@ -269,7 +275,53 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     )
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
+def _advance(phis, row, level, i, p, w, tw, wp, d):
+    """The state after one sub-step of ``h / 2**level`` in the mode of table row ``row``:
+    ``Phi [x; d; 1]`` (the position is the integral, so ``p`` adds to its row)."""
+    # Scalar loads, no views (a view costs reference counting in numba).
+    ni = (
+        phis[row, level, 0, 0] * i
+        + phis[row, level, 0, 2] * w
+        + phis[row, level, 0, 3] * tw
+        + phis[row, level, 0, 4] * wp
+        + phis[row, level, 0, 5] * d
+        + phis[row, level, 0, 6]
+    )
+    np_ = (
+        p
+        + phis[row, level, 1, 0] * i
+        + phis[row, level, 1, 2] * w
+        + phis[row, level, 1, 3] * tw
+        + phis[row, level, 1, 4] * wp
+        + phis[row, level, 1, 5] * d
+        + phis[row, level, 1, 6]
+    )
+    nw = (
+        phis[row, level, 2, 0] * i
+        + phis[row, level, 2, 2] * w
+        + phis[row, level, 2, 3] * tw
+        + phis[row, level, 2, 4] * wp
+        + phis[row, level, 2, 5] * d
+        + phis[row, level, 2, 6]
+    )
+    ntw = (
+        phis[row, level, 3, 0] * i
+        + phis[row, level, 3, 2] * w
+        + phis[row, level, 3, 3] * tw
+        + phis[row, level, 3, 4] * wp
+        + phis[row, level, 3, 5] * d
+        + phis[row, level, 3, 6]
+    )
+    nwp = (
+        phis[row, level, 4, 0] * i + phis[row, level, 4, 2] * w
+        + phis[row, level, 4, 3] * tw + phis[row, level, 4, 4] * wp
+        + phis[row, level, 4, 5] * d + phis[row, level, 4, 6]
+    )  # fmt: skip
+    return ni, np_, nw, ntw, nwp
+
+
+@numba.njit(cache=True, error_model="numpy")
 def step(
     i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
     stack_key,
@@ -306,45 +358,7 @@ def step(
         row = slots[k]
         if row < 0:
             return i, p, w, tw, wp, key_end, n_events, k
-        # Scalar loads, no views (a view costs reference counting in numba).
-        ni = (
-            phis[row, level, 0, 0] * i
-            + phis[row, level, 0, 2] * w
-            + phis[row, level, 0, 3] * tw
-            + phis[row, level, 0, 4] * wp
-            + phis[row, level, 0, 5] * d
-            + phis[row, level, 0, 6]
-        )
-        np_ = (
-            p
-            + phis[row, level, 1, 0] * i
-            + phis[row, level, 1, 2] * w
-            + phis[row, level, 1, 3] * tw
-            + phis[row, level, 1, 4] * wp
-            + phis[row, level, 1, 5] * d
-            + phis[row, level, 1, 6]
-        )
-        nw = (
-            phis[row, level, 2, 0] * i
-            + phis[row, level, 2, 2] * w
-            + phis[row, level, 2, 3] * tw
-            + phis[row, level, 2, 4] * wp
-            + phis[row, level, 2, 5] * d
-            + phis[row, level, 2, 6]
-        )
-        ntw = (
-            phis[row, level, 3, 0] * i
-            + phis[row, level, 3, 2] * w
-            + phis[row, level, 3, 3] * tw
-            + phis[row, level, 3, 4] * wp
-            + phis[row, level, 3, 5] * d
-            + phis[row, level, 3, 6]
-        )
-        nwp = (
-            phis[row, level, 4, 0] * i + phis[row, level, 4, 2] * w
-            + phis[row, level, 4, 3] * tw + phis[row, level, 4, 4] * wp
-            + phis[row, level, 4, 5] * d + phis[row, level, 4, 6]
-        )  # fmt: skip
+        ni, np_, nw, ntw, nwp = _advance(phis, row, level, i, p, w, tw, wp, d)
         key_end = key(ni, nw, ntw, nwp, d, en, kc)
         accept = key_end == k
         bridge_on = k // _MECH == _B_ON
@@ -387,7 +401,7 @@ def step(
     return i, p, w, tw, wp, key_end, n_events, -1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def step_members(
     x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
     budget, out_x, out_keys,
@@ -399,26 +413,54 @@ def step_members(
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do."""
     events = 0
-    stack_level = np.empty(2 * levels + 2, dtype=np.int64)
-    stack_key = np.empty(2 * levels + 2, dtype=np.int64)
+    # step's scratch, allocated when a member first needs it (rarely: most steps take the
+    # common path below).
+    stack_level = np.empty(0, dtype=np.int64)
+    stack_key = np.empty(0, dtype=np.int64)
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
     g = 0
     kc = consts[0]
+    h_s = kc[_H_S]
     sl = slots[0]
     for j in range(start, x.shape[0]):
         if not shared:
             g = group[j]
             kc = consts[g]
             sl = slots[g]
-        i = x[j, 0]
+            h_s = kc[_H_S]
+        i, p, w, tw, wp = x[j, 0], x[j, 1], x[j, 2], x[j, 3], x[j, 4]
+        d = duty[j]
         en = enable[j]
-        k0 = -1
-        if known and en and -kc[_ICL] < i < kc[_ICL]:
+        icl = kc[_ICL]
+        if known and en and -icl < i < icl:
             k0 = keys_in[j]
+        else:
+            k0 = key(i, w, tw, wp, d, en, kc)
+        # The common case first, without step's sub-step stack: the whole step in the start
+        # mode ends in it and leaves it nowhere in between (exactly step's first pass).
+        row = sl[k0]
+        if row >= 0 and levels > 0 and budget > 0:
+            ni, np_, nw, ntw, nwp = _advance(phis, row, 0, i, p, w, tw, wp, d)
+            k1 = key(ni, nw, ntw, nwp, d, en, kc)
+            if k1 == k0:
+                bridge_on = k0 // _MECH == _B_ON
+                if not (bridge_on and -icl <= i <= icl and (ni > icl or ni < -icl)) and not (
+                    _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc)
+                ):
+                    out_x[j, 0] = ni
+                    out_x[j, 1] = np_
+                    out_x[j, 2] = nw
+                    out_x[j, 3] = ntw
+                    out_x[j, 4] = nwp
+                    out_keys[j] = k1 % _MECH
+                    continue
+        if stack_level.shape[0] == 0:
+            stack_level = np.empty(2 * levels + 2, dtype=np.int64)
+            stack_key = np.empty(2 * levels + 2, dtype=np.int64)
         r = step(
-            i, x[j, 1], x[j, 2], x[j, 3], x[j, 4], duty[j], en, k0, levels, budget, sl, phis,
-            rates, kc, stack_level, stack_key,
+            i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, stack_level,
+            stack_key,
         )  # fmt: skip
         if r[7] >= 0:
             return j, events, g, r[7]

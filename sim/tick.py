@@ -118,6 +118,7 @@ def run_ticks(
     no_draw = np.empty(0)
     keep = flags[F_KEEP] != 0
     frame_bytes = flags[F_FRAME_BYTES]
+    values = np.empty(6)  # a telemetry frame's float fields
     while True:
         k = ctx[CX_K]
         stage = ctx[CX_STAGE]
@@ -167,7 +168,6 @@ def run_ticks(
                 free = flags[F_FIFO] - ctx[CX_PENDING]
                 if frame_bytes <= free:
                     at = ctx[CX_TXLEN]
-                    values = np.empty(6)
                     values[0], values[1] = fs[FS_SP_POS], fs[FS_SP_VEL]
                     values[2], values[3] = P[P_POS, 0], P[P_VEL, 0]
                     # The bridge is off for the next period if disabled, whatever the law said.
