@@ -30,6 +30,7 @@ KERNEL_SOURCES = (
     "sim/encoder.py",
     "sim/plant.py",
     "sim/plant_kernel.py",
+    "sim/supply.py",
     "sim/tick.py",
 )
 

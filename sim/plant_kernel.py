@@ -413,10 +413,6 @@ def step_members(
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do."""
     events = 0
-    # step's scratch, allocated when a member first needs it (rarely: most steps take the
-    # common path below).
-    stack_level = np.empty(0, dtype=np.int64)
-    stack_key = np.empty(0, dtype=np.int64)
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
     g = 0
@@ -455,12 +451,12 @@ def step_members(
                     out_x[j, 4] = nwp
                     out_keys[j] = k1 % _MECH
                     continue
-        if stack_level.shape[0] == 0:
-            stack_level = np.empty(2 * levels + 2, dtype=np.int64)
-            stack_key = np.empty(2 * levels + 2, dtype=np.int64)
+        # step's scratch, allocated here: rare (most steps took the common path above), and
+        # an allocation per call would cost a one-member batch more than its step.
+        size = 2 * levels + 2
         r = step(
-            i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, stack_level,
-            stack_key,
+            i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc,
+            np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64),
         )  # fmt: skip
         if r[7] >= 0:
             return j, events, g, r[7]
