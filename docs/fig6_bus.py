@@ -26,6 +26,15 @@ VARIANTS: dict[str, dict[str, object]] = {
     "stiff 24 V supply (bus model off: the bench so far)": {},
     "bus: 2,200 µF, no brake (the paper's bench as assumed)": BUS,
     "bus + brake chopper 10 Ω at 26.5 V": {**BUS, "supply.brake_resistor_ohm": 10.0},
+    "bus + chopper + firmware duty from the measured bus": {
+        **BUS,
+        "supply.brake_resistor_ohm": 10.0,
+        "controller.current.bus_compensation": True,
+    },
+    "bus + firmware regenerative limit 0.05 A (no chopper)": {
+        **BUS,
+        "controller.current.regen_bus_current_limit_a": 0.05,
+    },
 }
 
 
@@ -50,7 +59,7 @@ def _metrics(log: loop.RunLog, dt_s: float) -> dict[str, float]:
 
 def main(out: Path = Path(__file__).parent / "img" / "fig6_bus.png") -> Path:
     exp = experiments.load("fig6")
-    fig, (ax_p, ax_v, ax_b) = plt.subplots(3, 1, figsize=(9, 9), sharex=True)
+    fig, (ax_p, ax_v, ax_b) = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
     print(
         f"{'variant':58s} {'overshoot':>10s} {'at':>6s} {'1st lock':>8s} {'locked':>7s} "
         f"{'bus max':>7s} {'returned':>8s} {'peak':>6s} {'end err':>8s}"
@@ -63,12 +72,12 @@ def main(out: Path = Path(__file__).parent / "img" / "fig6_bus.png") -> Path:
             f"{m['first_lockout_s']:7.3f}s {m['locked_s']:6.2f}s {m['bus_max_v']:6.2f}V "
             f"{m['returned_j']:7.2f}J {m['peak_return_w']:5.1f}W {m['final_error_deg']:7.2f}°"
         )
-        ax_p.plot(log.t_s, log.true_pos_deg, label=name, lw=1.2)
+        ax_p.plot(log.t_s, log.true_pos_deg, label=name, lw=1.1)
         ax_v.plot(log.t_s, log.true_vel_dps, lw=1.0)
         ax_b.plot(log.t_s, log.bus_v, lw=1.0)
     ax_p.axhline(3000.0, color="0.6", lw=0.8, ls=":")
     ax_p.set_ylabel("axis position (°)")
-    ax_p.set_ylim(2000.0, 3700.0)
+    ax_p.set_ylim(2000.0, 3900.0)
     ax_p.legend(fontsize=8, loc="lower right")
     ax_p.set_title(
         "Fig. 6 step (3000° without planning) with the bus model: braking returns energy\n"

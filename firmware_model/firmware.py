@@ -34,7 +34,15 @@ import numpy as np
 from firmware_model import programs, safety
 from firmware_model import tick as ftick
 from firmware_model.laws import Law
-from firmware_model.laws.layout import P_DUTY, P_IMEAS, P_IREF, P_POS, P_VEL, P_VEL_RAW
+from firmware_model.laws.layout import (
+    C_BUS_ADC,
+    P_DUTY,
+    P_IMEAS,
+    P_IREF,
+    P_POS,
+    P_VEL,
+    P_VEL_RAW,
+)
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
 from planner.online import OnlinePlanner
@@ -319,17 +327,22 @@ class Firmware:
         self.tick += 1
         return self._transmit(tx_free)
 
-    def current_tick(self, adc_counts: Any) -> tuple[Any, Any]:
+    def current_tick(self, adc_counts: Any, bus_adc_counts: Any = None) -> tuple[Any, Any]:
         """One current-loop period: ``(duty, enable)`` for the bridge.
 
         Args:
             adc_counts: the IS-pin reading(s), int in [0, 4095] (``(N,)`` in batch).
+            bus_adc_counts: the bus-voltage channel's reading(s) (through the divider of
+                ``[controller.current] bus_divider_ratio``); None keeps the last one (at
+                power-on the configured supply's).
 
         Returns:
             ``duty`` in [-1, 1] on the timer's ARR grid, applied by the bridge for the next
             current-loop period, and ``enable`` (False: bridge off, the motor coasts).
         """
         law = self.law
+        if bus_adc_counts is not None:
+            law.C[C_BUS_ADC] = bus_adc_counts
         if self._scalar:
             adc = self._raw
             adc[0] = adc_counts

@@ -224,6 +224,14 @@ class CurrentLoopGains(_Checked):
     A reading at or below ``sense_floor_counts`` while the reference opposes the duty (or
     no duty is applied) is taken as "the high side carries nothing": the loop then uses its
     reference as the current (see docs/model.md, "The current loop").
+
+    The bus voltage comes in on a second ADC channel through a divider of
+    ``bus_divider_ratio``. ``bus_compensation``: the duty is the voltage over the *measured*
+    bus instead of ``supply_v``. ``regen_bus_current_limit_a`` (0: off): the velocity loop
+    caps its braking current so that the current returned to the bus, about
+    ``|i K_e w| / V_bus``, stays below it (ODrive's ``dc_max_negative_current``). From a
+    bus reading of ``bus_hold_v`` up (the BTN7971B's over-voltage lock-out may have turned
+    the outputs off: its IS pins then read nothing), the current PI holds its integrator.
     """
 
     kp_v_per_a: Gain = _f(_DEFAULTS["current.kp_v_per_a"], _gain)
@@ -238,6 +246,15 @@ class CurrentLoopGains(_Checked):
     adc_vref_v: float = _f(3.3, _rng(0.5, 5.5))
     adc_bits: int = _f(12, _irng(8, 16))
     sense_floor_counts: int = _f(2, _irng(0, 100))
+    bus_divider_ratio: float = _f(11.0, _rng(1.0, 1000.0))
+    bus_compensation: bool = _f(False, _boolean)
+    regen_bus_current_limit_a: float = _f(0.0, _rng(0.0, 100.0))
+    bus_hold_v: float = _f(27.8, _rng(1.0, 100.0))
+
+    @property
+    def v_per_bus_adc(self) -> float:
+        """Volts of bus per count of its ADC channel (through the divider; 8.86 mV)."""
+        return self.adc_vref_v / float(1 << self.adc_bits) * self.bus_divider_ratio
 
     @property
     def a_per_adc(self) -> float:

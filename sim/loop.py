@@ -47,7 +47,7 @@ from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
-from sim.supply import Bus, step_period
+from sim.supply import Bus, read_bus_adc, step_period
 
 __all__ = [
     "LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run", "warm_up",
@@ -356,6 +356,8 @@ class Simulation:
         from firmware_model.firmware import Firmware
 
         self._compiled = type(firmware) is Firmware and not record_inputs
+        # The project's firmware reads the bus voltage too (a foreign one: the IS pin only).
+        self._reads_bus = isinstance(firmware, Firmware)
         self._x_spare = np.zeros((n, 5))
 
     # ---------------------------------------------------------------- public API
@@ -707,12 +709,15 @@ class Simulation:
             adc = np.empty(n, dtype=np.int64)
             read_adc(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
                         self._adc_full, adc)  # fmt: skip
+            bus_adc = np.empty(n, dtype=np.int64)
+            read_bus_adc(self.bus.kernel_args(), self._vs_n, self._adc_full, bus_adc)
+            extra = () if not self._reads_bus else (int(bus_adc[0]) if scalar else bus_adc,)
             if scalar:  # the one-axis API: floats in and out
                 duty_in, enable_in = self._one_duty, self._one_enable
-                duty_in[0], enable_in[0] = fw.current_tick(int(adc[0]))
+                duty_in[0], enable_in[0] = fw.current_tick(int(adc[0]), *extra)
                 duty, enable = duty_in, enable_in
             else:
-                duty, enable = fw.current_tick(adc)
+                duty, enable = fw.current_tick(adc, *extra)
                 if not (isinstance(duty, np.ndarray) and duty.shape == (n,)):
                     duty = np.broadcast_to(np.asarray(duty, dtype=float), (n,))
                 if not (isinstance(enable, np.ndarray) and enable.shape == (n,)):

@@ -73,6 +73,8 @@ class SupplyParams:
     current (its output diode), with its source resistance, feeding the bulk capacitor;
     braking returns energy into the capacitor and lifts the bus, up to the BTN7971B's
     over-voltage lock-out (``[bridge] ov_lockout_v``) unless a brake chopper takes it.
+    ``sense_divider_ratio``: the board's divider from the bus to an STM32 ADC channel (the
+    ADC of ``[current_sense]``), which the firmware reads every current-loop period.
     """
 
     voltage_v: float = 24.0
@@ -83,9 +85,17 @@ class SupplyParams:
     brake_resistor_ohm: float = 0.0
     brake_on_v: float = 26.5
     bus_substeps: int = 16
+    sense_divider_ratio: float = 11.0
 
     def __post_init__(self) -> None:
         _positive(self, "voltage_v", "source_resistance_ohm", "bulk_capacitance_uf")
+        _check(
+            self,
+            "sense_divider_ratio",
+            _finite(self.sense_divider_ratio)
+            and bool(np.all(np.asarray(self.sense_divider_ratio) >= 1)),
+            "must be finite and >= 1 (a divider)",
+        )
         _non_negative(self, "logic_load_a", "brake_resistor_ohm")
         # The BTN7971B locks out above 27.8 V (datasheet V_OV(OFF) min).
         _check(

@@ -40,6 +40,7 @@ __all__ = [
     "Bus",
     "bridge_current_a",
     "rail_advance",
+    "read_bus_adc",
     "step_period",
 ]
 
@@ -147,10 +148,10 @@ def step_period(
     (``bus[0]`` empty), else ``bus_substeps`` sub-steps coupled to the rail (module
     docstring). Returns ``step_members``' ``(next, events, group, need)``; on ``need`` >= 0
     the caller loads the mode and calls again with ``start = next`` (the sub-step reached is
-    kept in ``bus``). ``bus = (v, locked, cfg, sub, xs, d_eff, en_eff, v_mid, v_sum)``; with
+    kept in ``bus``). ``bus = (v, locked, cfg, sub, xs, d_eff, en_eff, v_mid, v_sum, ...)``; with
     the bus model, ``volt`` gets the period's mean bridge output and ``sense_sign`` 0 for a
     locked-out member (its IS pins carry nothing)."""
-    v, locked, cfg, sub, xs, d_eff, en_eff, v_mid, v_sum = bus
+    v, locked, cfg, sub, xs, d_eff, en_eff, v_mid, v_sum = bus[:9]
     if v.shape[0] == 0:
         return step_members(
             x, duty, enable, keys, known, start, group, slots, phis, rates, consts, levels,
@@ -202,6 +203,22 @@ def step_period(
     return n, events, 0, -1
 
 
+@numba.njit(cache=True)
+def read_bus_adc(bus, supply_v, adc_full, out):
+    """The bus voltage through the board's divider into the STM32's ADC, per member
+    (rounded to nearest, clamped to the ADC's range): the rail with the bus model, the
+    supply's voltage without it. ``bus``: ``Bus.kernel_args()``."""
+    v, v_per_count = bus[0], bus[9]
+    for j in range(out.shape[0]):
+        volts = v[j] if v.shape[0] else supply_v[j]
+        c = np.floor(volts / v_per_count[j] + 0.5)
+        if c > adc_full:
+            c = adc_full
+        if c < 0.0:
+            c = 0.0
+        out[j] = np.int64(c)
+
+
 class Bus:
     """The rail's state and scratch for ``step_period``, one per ``Simulation``; empty
     arrays (``step_period`` is then the plain plant step) when ``[supply] bus_model`` is
@@ -232,10 +249,15 @@ class Bus:
         self.en_eff = np.empty(size, dtype=bool)
         self.v_mid = np.empty(size)
         self.v_sum = np.empty(size)
+        # The board's bus-voltage channel: volts per ADC count through the divider.
+        sense = params.current_sense
+        self.v_per_count = per_member(
+            sense.adc_vref_v / (1 << sense.adc_bits) * sup.sense_divider_ratio, n
+        )
 
     def kernel_args(self) -> tuple[np.ndarray, ...]:
-        """The ``bus`` tuple ``step_period`` takes."""
+        """The ``bus`` tuple ``step_period`` and ``read_bus_adc`` take."""
         return (
             self.v, self.locked, self.cfg, self.sub, self.xs, self.d_eff, self.en_eff,
-            self.v_mid, self.v_sum,
+            self.v_mid, self.v_sum, self.v_per_count,
         )  # fmt: skip

@@ -41,6 +41,7 @@ import numpy as np
 
 from firmware_model.laws import dispatch as law_steps
 from firmware_model.laws.layout import (
+    C_BUS_ADC,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -67,7 +68,7 @@ from firmware_model.tick import (
 from serial_protocol import uart
 from sim.bridge import apply_bridge, read_adc
 from sim.encoder import _read
-from sim.supply import step_period
+from sim.supply import read_bus_adc, step_period
 
 __all__ = ["run_ticks"]
 
@@ -201,6 +202,7 @@ def run_ticks(
                     draw = adc_block[ctx[CX_ADC_ROW]]
                     ctx[CX_ADC_ROW] += 1
                 read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc)
+                read_bus_adc(bus, supply_v, adc_full, C[C_BUS_ADC])
                 en_now[:] = enabled
                 stage = BRIDGE
                 if current_stage(adc, en_now, P, C, S, G, K, fs, fi, oc_ticks):

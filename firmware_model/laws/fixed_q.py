@@ -16,6 +16,7 @@ import numpy as np
 from firmware_model import fixedpoint as fx
 from firmware_model.laws.float64 import _reset_member
 from firmware_model.laws.layout import (
+    C_BUS_ADC,
     C_COUNT,
     C_D,
     C_INNOV,
@@ -40,6 +41,8 @@ from firmware_model.laws.layout import (
     HALF_REV,
     K_A_PER_ADC_Q,
     K_ARR,
+    K_BUS_COMP,
+    K_BUS_HOLD,
     K_DELAY,
     K_DPS_PER_COUNT_TICK,
     K_HALF_Q,
@@ -47,8 +50,11 @@ from firmware_model.laws.layout import (
     K_INV_SUPPLY_Q,
     K_PIPE_I,
     K_REF_I,
+    K_REGEN_A,
     K_SENSE_FLOOR,
+    K_SUPPLY_V,
     K_U_LIM,
+    K_V_PER_BUS_ADC_Q,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -121,6 +127,31 @@ def qgain(x):
 
 
 @numba.njit(cache=True)
+def _bus_v_q(j, C, K):
+    """``float64.bus_v`` in Q16.16: the reading times volts per count (Q8.24), at least
+    1 V."""
+    if K[K_BUS_COMP] == 0.0:
+        return qsig(K[K_SUPPLY_V])
+    v = (C[C_BUS_ADC, j] * np.int64(K[K_V_PER_BUS_ADC_Q]) + (1 << 7)) >> (_GB - _SB)
+    return v if v > _SIG_ONE else np.int64(_SIG_ONE)
+
+
+@numba.njit(cache=True)
+def _regen_limits_q(j, il, C, S, G, K):
+    """``float64._regen_limits`` in Q16.16 (one 64-bit division)."""
+    emf = _mul(S[S_VEL, j], G[G_EMF_FF, j])
+    lo, hi = -il, il
+    if emf != 0:
+        bound = (qsig(K[K_REGEN_A]) * _bus_v_q(j, C, K)) // abs(emf)
+        if bound < il:
+            if emf > 0:
+                lo = -bound
+            else:
+                hi = bound
+    return lo, hi
+
+
+@numba.njit(cache=True)
 def estimate(raw, P, C, S, G, K):
     """``float64.estimate`` in Q-format."""
     ref_row = S_REF_PIPE + np.int64(K[K_REF_I])
@@ -167,12 +198,15 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
         ff = _mul(sa, G[G_ACC_FF, j])
         i_v = S[S_I_V, j]
         u = _sat(_sat(_mul(ev, G[G_KP_V, j]) + i_v) + ff)
-        if not ((u > il and ev > 0) or (u < -il and ev < 0)):
+        lo, hi = -il, il
+        if K[K_REGEN_A] > 0.0:
+            lo, hi = _regen_limits_q(j, il, C, S, G, K)
+        if not ((u > hi and ev > 0) or (u < lo and ev < 0)):
             i_v = _sat(i_v + _mul(ev, G[G_KI_V_DT, j]))
         S[S_I_V, j] = _clamp(i_v, il)
         S[S_VR, j] = vr
         P[P_VREF, j] = vr / _SIG_ONE
-        iref = _clamp(u, il)
+        iref = hi if u > hi else (lo if u < lo else u)
         S[S_IREF, j] = iref
         P[P_IREF, j] = iref / _SIG_ONE
     K[K_I_LIMIT_A] = i_limit_a
@@ -220,9 +254,17 @@ def current(adc, enabled, P, C, S, G, K):
             u = hi
         elif not ((u > ul and e > 0) or (u < -ul and e < 0)):
             i_i = _sat(i_i + _mul(e, G[G_KI_I_DT, j]))
-        S[S_I_I, j] = _clamp(i_i, ul)
-        u = _clamp(u, ul)
-        duty_q = _mul(u, inv_supply)
+        if C[C_BUS_ADC, j] < K[K_BUS_HOLD]:
+            S[S_I_I, j] = _clamp(i_i, ul)
+        if K[K_BUS_COMP] != 0.0:
+            # u / V_bus (a 64-bit division, truncated), within the duty limit.
+            au = u if u >= 0 else -u
+            duty_q = (au << _SB) // _bus_v_q(j, C, K)
+            duty_q = min(duty_q, qsig(K[K_U_LIM] / K[K_SUPPLY_V]))
+            duty_q = duty_q if u >= 0 else -duty_q
+        else:
+            u = _clamp(u, ul)
+            duty_q = _mul(u, inv_supply)
         new_steps = (duty_q * arr + (1 << 15)) >> _SB
         if delay > 0:
             out = C[C_PIPE + pipe_i, j]

@@ -15,6 +15,7 @@ import numba
 import numpy as np
 
 from firmware_model.laws.layout import (
+    C_BUS_ADC,
     C_COUNT,
     C_D,
     C_INNOV,
@@ -39,14 +40,18 @@ from firmware_model.laws.layout import (
     HALF_REV,
     K_A_PER_ADC,
     K_ARR,
+    K_BUS_COMP,
+    K_BUS_HOLD,
     K_DELAY,
     K_DPS_PER_COUNT_TICK,
     K_I_LIMIT_A,
     K_PIPE_I,
     K_REF_I,
+    K_REGEN_A,
     K_SENSE_FLOOR,
     K_SUPPLY_V,
     K_U_LIM,
+    K_V_PER_BUS_ADC,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -119,15 +124,55 @@ def estimate(raw, P, C, S, G, K):
 
 
 @numba.njit(cache=True)
+def bus_v(j, C, K):
+    """Member ``j``'s bus voltage for the duty: measured (``K_BUS_COMP``), else the
+    configured supply. A reading below 1 V counts as 1 V (no division by zero)."""
+    if K[K_BUS_COMP] == 0.0:
+        return K[K_SUPPLY_V]
+    v = C[C_BUS_ADC, j] * K[K_V_PER_BUS_ADC]
+    return v if v > 1.0 else 1.0
+
+
+@numba.njit(cache=True)
+def _regen_limits(j, i_limit_a, regen_a, C, S, G, K):
+    """The velocity loop's current clamp ``(lo, hi)`` with the regenerative bus-current
+    limit: on the braking side (the current against the back-EMF ``k_emf v``), ``|i| <=
+    regen_a V_bus / |k_emf v|``, which keeps the current returned to the bus, ``(|k_emf v|
+    |i| - R i^2) / V_bus``, below ``regen_a`` (conservative by the copper loss)."""
+    emf = S[S_VEL, j] * G[G_EMF_FF, j]
+    lo, hi = -i_limit_a, i_limit_a
+    if emf != 0.0:
+        bound = regen_a * bus_v(j, C, K) / abs(emf)
+        if bound < i_limit_a:
+            if emf > 0.0:
+                lo = -bound
+            else:
+                hi = bound
+    return lo, hi
+
+
+@numba.njit(cache=True)
 def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, G, K):
     """Position P -> velocity PI with feed-forward, clamps and conditional integration:
     sets each member's velocity and current references."""
+    regen = K[K_REGEN_A]
     for j in range(C.shape[1]):
         e = sp_pos_deg - C[C_COUNT, j] * AXIS_DEG_PER_COUNT
         vr = _clip(e * G[G_KP_P, j] + sp_vel_dps * G[G_VFF, j], v_clamp_dps)
         ev = vr - S[S_VEL, j]
         i_v = S[S_I_V, j]
         u = ev * G[G_KP_V, j] + i_v + sp_acc_dps2 * G[G_ACC_FF, j]
+        if regen > 0.0:
+            lo, hi = _regen_limits(j, i_limit_a, regen, C, S, G, K)
+            if not ((u > hi and ev > 0.0) or (u < lo and ev < 0.0)):
+                i_v = i_v + ev * G[G_KI_V_DT, j]
+            S[S_I_V, j] = _clip(i_v, i_limit_a)
+            S[S_VR, j] = vr
+            P[P_VREF, j] = vr
+            iref = hi if u > hi else (lo if u < lo else u)
+            S[S_IREF, j] = iref
+            P[P_IREF, j] = iref
+            continue
         # Hold the integrator while the output is clamped and the error pushes further in.
         if not (abs(u) > i_limit_a and u * ev > 0.0):
             i_v = i_v + ev * G[G_KI_V_DT, j]
@@ -180,8 +225,15 @@ def current(adc, enabled, P, C, S, G, K):
             c = emf - r_lim if d < 0.0 else emf + r_lim
             ii = S[S_I_I, j] + (c - u)
             u = c
-        S[S_I_I, j] = _clip(ii, u_lim)
-        new_steps = np.int64(np.rint(_clip(u, u_lim) / supply_v * arr))
+        if C[C_BUS_ADC, j] < K[K_BUS_HOLD]:
+            S[S_I_I, j] = _clip(ii, u_lim)
+        # else: at the lock-out the IS pin may read nothing; hold the integrator.
+        if K[K_BUS_COMP] != 0.0:
+            # The duty from the measured bus: u / V_bus, within the same duty limit.
+            v = bus_v(j, C, K)
+            new_steps = np.int64(np.rint(_clip(u, u_lim / supply_v * v) / v * arr))
+        else:
+            new_steps = np.int64(np.rint(_clip(u, u_lim) / supply_v * arr))
         if delay > 0:
             out = C[C_PIPE + pipe_i, j]
             C[C_PIPE + pipe_i, j] = new_steps

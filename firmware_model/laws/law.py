@@ -6,6 +6,7 @@ One axis is ``Law(params)`` (N = 1): the same steps, the same arrays.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -14,6 +15,7 @@ import numpy.typing as npt
 from firmware_model import fixedpoint as fx
 from firmware_model.laws import fixed_q, float64
 from firmware_model.laws.layout import (
+    C_BUS_ADC,
     C_COUNT,
     C_D,
     C_INNOV,
@@ -38,6 +40,8 @@ from firmware_model.laws.layout import (
     K_A_PER_ADC,
     K_A_PER_ADC_Q,
     K_ARR,
+    K_BUS_COMP,
+    K_BUS_HOLD,
     K_DELAY,
     K_DPS_PER_COUNT_TICK,
     K_HALF_Q,
@@ -45,9 +49,12 @@ from firmware_model.laws.layout import (
     K_INV_SUPPLY_Q,
     K_PIPE_I,
     K_REF_I,
+    K_REGEN_A,
     K_SENSE_FLOOR,
     K_SUPPLY_V,
     K_U_LIM,
+    K_V_PER_BUS_ADC,
+    K_V_PER_BUS_ADC_Q,
     N_G,
     N_K,
     N_P,
@@ -142,6 +149,13 @@ class Law:
         k[K_A_PER_ADC_Q] = int(round(self.a_per_adc * (1 << fx.GAIN_FRAC_BITS)))
         k[K_HALF_Q] = fixed_q.qgain(0.5)
         k[K_INV_SUPPLY_Q] = fixed_q.qgain(1.0 / self.supply_v)
+        k[K_BUS_COMP] = float(cur.bus_compensation)
+        k[K_V_PER_BUS_ADC] = cur.v_per_bus_adc
+        k[K_V_PER_BUS_ADC_Q] = int(round(cur.v_per_bus_adc * (1 << fx.GAIN_FRAC_BITS)))
+        k[K_REGEN_A] = cur.regen_bus_current_limit_a
+        k[K_BUS_HOLD] = math.ceil(cur.bus_hold_v / cur.v_per_bus_adc)
+        # Until the board reports a reading: the configured supply (nominal).
+        self.bus_adc_nominal = int(round(self.supply_v / cur.v_per_bus_adc))
         self._derive()
         self.reset(np.zeros(n, dtype=np.int64))
 
@@ -180,6 +194,7 @@ class Law:
         self.C[:] = 0
         self.C[C_COUNT] = raw[0] + (raw - raw[0] + HALF_REV) % REV - HALF_REV
         self.C[C_RAW_PREV] = raw
+        self.C[C_BUS_ADC] = self.bus_adc_nominal
         self.S[:] = 0
         self.P[:] = 0.0
         self.P[P_POS] = self.C[C_COUNT] * AXIS_DEG_PER_COUNT

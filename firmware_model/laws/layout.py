@@ -30,8 +30,9 @@ Q_DEG_PER_COUNT = int(round(AXIS_DEG_PER_COUNT * (1 << fx.SIG_FRAC_BITS)))
 P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY = range(7)
 N_P = 7
 # C: integers.
-C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS = range(6)
-C_PIPE = 6
+# C_BUS_ADC: the bus-voltage ADC reading of the period (the board writes it, as the IS pin's).
+C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC = range(7)
+C_PIPE = 7
 # S: the law's arithmetic (float64 or Q16.16).
 S_EP, S_V, S_AD, S_VEL, S_I_V, S_I_I, S_VR, S_IREF, S_IMEAS, S_REF_D_LAST = range(10)
 S_REF_PIPE = 10
@@ -42,8 +43,12 @@ S_REF_PIPE = 10
 ) = range(14)  # fmt: skip
 N_G = 14
 # K: shared float constants; the two pipeline indices are stored as floats (exact).
+# K_BUS_COMP: 1 = duty from the measured bus voltage; K_V_PER_BUS_ADC(_Q): volts per count
+# of it (float, Q8.24); K_REGEN_A: the regenerative bus-current limit (A, 0 = off);
+# K_BUS_HOLD: the bus reading (counts) from which the current integrator holds.
 (
     K_DPS_PER_COUNT_TICK, K_A_PER_ADC, K_SENSE_FLOOR, K_U_LIM, K_SUPPLY_V, K_ARR, K_DELAY,
-    K_I_LIMIT_A, K_REF_I, K_PIPE_I, K_A_PER_ADC_Q, K_HALF_Q, K_INV_SUPPLY_Q,
-) = range(13)  # fmt: skip
-N_K = 13
+    K_I_LIMIT_A, K_REF_I, K_PIPE_I, K_A_PER_ADC_Q, K_HALF_Q, K_INV_SUPPLY_Q, K_BUS_COMP,
+    K_V_PER_BUS_ADC, K_V_PER_BUS_ADC_Q, K_REGEN_A, K_BUS_HOLD,
+) = range(18)  # fmt: skip
+N_K = 18

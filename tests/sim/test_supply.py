@@ -175,3 +175,33 @@ def test_bad_supply_values_are_refused_in_one_line(key, value, words):
     with pytest.raises(ValueError, match=words) as info:
         SupplyParams(**kwargs)
     assert "\n" not in str(info.value) and key in str(info.value)
+
+
+def test_firmware_duty_from_the_measured_bus_undoes_a_lifted_bus():
+    # The 10 ohm chopper holds the bus at 26.5 V while braking; a firmware that computes
+    # its duty for 24 V brakes with less current than it means (its regenerative clamp
+    # is in volts), one that divides by the measured bus brakes as on the stiff supply.
+    stiff = _fig6().true_pos_deg.max()
+    chopper = {**BUS, "supply.brake_resistor_ohm": 10.0}
+    plain = _fig6(**chopper).true_pos_deg.max()
+    comp = _fig6(**chopper, **{"controller.current.bus_compensation": True}).true_pos_deg.max()
+    assert plain - stiff > 10.0  # measured 58.2 against 42.3 deg of overshoot
+    assert abs(comp - stiff) < 2.0  # measured 42.9
+
+
+def test_regenerative_limit_keeps_the_bus_down_and_brakes_on_friction():
+    limited = _fig6(**BUS, **{"controller.current.regen_bus_current_limit_a": 0.05})
+    # The bus never reaches the lock-out; with only the 40 mA logic load to take the
+    # energy, it hardly rises, and the braking is the friction's: a far longer overshoot.
+    assert limited.bus_v.max() < 24.1
+    assert np.all((limited.voltage_v != 0.0) | (limited.duty == 0.0))  # never locked out
+    assert limited.true_pos_deg.max() - 3000.0 > 300.0
+
+
+def test_lock_out_with_compensation_does_not_wind_the_current_loop_up():
+    # Locked out, the IS pin reads nothing; with the duty from the measured bus the duty's
+    # sign flips during the lock-out, the missing current becomes "visible" and (before
+    # the hold at bus_hold_v) the integrator wound up: 12 A and an over-current trip.
+    log = _fig6(**BUS, **{"controller.current.bus_compensation": True})
+    assert np.all(log.fault == 0)
+    assert np.abs(log.current_a).max() < 6.0  # measured 5.65 A
