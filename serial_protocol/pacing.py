@@ -3,10 +3,14 @@
 Used by ``turntable-sim serve`` between the simulated board and a real pty or socket. No
 I/O here: callers pass the time (``wall_s``, host monotonic seconds) and the bytes.
 
-``LinePacer`` is a token bucket at the line's byte rate: a sender that writes only what
-``allowance`` grants puts at most ``burst_bytes + rate * w`` bytes into any interval of
-``w`` seconds, however late it runs (a process stalled by a loaded machine does not catch up
-with a burst). It also measures the largest number of bytes it granted in any
+``LinePacer`` is a token bucket at the line's byte rate with a hard cap per window: a
+sender that writes only what ``allowance`` grants puts at most ``burst_bytes + rate * w``
+bytes into any interval of ``w`` seconds and never more than the line carries in any
+``window_s`` window (100 ms), however late it runs. The bucket lets a process that a loaded
+machine wakes only every few tens of milliseconds still keep up with the line (a 2 ms bucket
+let such a process send 2 ms of line per wake-up: it fell behind, and its queue dropped
+frames, answers among them); the window cap keeps a stalled process from catching up with
+a burst above the line. It also measures the largest number of bytes it granted in any
 ``window_s`` window, so that a server can state its peak line use.
 
 ``FrameQueue`` holds bytes on their way to a slow reader (or from a fast writer) in units
@@ -51,7 +55,9 @@ def _is_frame(data: bytes) -> bool:
 
 
 class LinePacer:
-    """A token bucket at ``bytes_per_s`` holding at most ``burst_bytes``.
+    """A token bucket at ``bytes_per_s`` holding at most ``burst_bytes``, capped so that no
+    half-open interval of ``window_s`` seconds holds more than ``window_cap_bytes`` (the
+    line's capacity in that window, ``floor(bytes_per_s * window_s)``, at least 1).
 
     ``allowance(wall_s)`` is how many bytes may be written now; ``spend(wall_s, n)`` records
     a write of ``n`` of them. ``peak_window_bytes`` is the largest number of bytes spent in
@@ -72,6 +78,7 @@ class LinePacer:
         self._last_s: float | None = None
         self._window: deque[tuple[float, int]] = deque()
         self._window_bytes = 0
+        self.window_cap_bytes = max(1, int(self.bytes_per_s * self.window_s))
 
     @property
     def window_capacity_bytes(self) -> float:
@@ -87,33 +94,46 @@ class LinePacer:
         if last is None or wall_s > last:
             self._last_s = wall_s
 
+    def _slide(self, wall_s: float) -> None:
+        """Forget the writes that no longer lie in the window ending at ``wall_s``."""
+        window = self._window
+        while window and window[0][0] <= wall_s - self.window_s:
+            self._window_bytes -= window.popleft()[1]
+
     def allowance(self, wall_s: float) -> int:
         """Bytes that may be written at ``wall_s``."""
         self._refill(wall_s)
-        return int(self._tokens)
+        self._slide(wall_s)
+        return max(0, min(int(self._tokens), self.window_cap_bytes - self._window_bytes))
 
     def spend(self, wall_s: float, n_bytes: int) -> None:
         """Record that ``n_bytes`` (at most ``allowance(wall_s)``) were written at
         ``wall_s``."""
         if n_bytes <= 0:
             return
-        self._refill(wall_s)
-        if n_bytes > int(self._tokens):
-            raise ValueError(f"n_bytes = {n_bytes}: more than the allowance {int(self._tokens)}")
+        allowed = self.allowance(wall_s)
+        if n_bytes > allowed:
+            raise ValueError(f"n_bytes = {n_bytes}: more than the allowance {allowed}")
         self._tokens -= n_bytes
         self.bytes_spent += n_bytes
-        window = self._window
-        window.append((wall_s, n_bytes))
+        self._window.append((wall_s, n_bytes))
         self._window_bytes += n_bytes
-        while window and window[0][0] <= wall_s - self.window_s:
-            self._window_bytes -= window.popleft()[1]
         self.peak_window_bytes = max(self.peak_window_bytes, self._window_bytes)
 
     def wait_s(self, n_bytes: int) -> float:
         """Seconds from the last ``allowance``/``spend`` until ``n_bytes`` (capped at the
-        bucket) may be written."""
-        want = min(n_bytes, self.burst_bytes)
-        return max(0.0, (want - self._tokens) / self.bytes_per_s)
+        bucket and at the window cap) may be written."""
+        want = min(n_bytes, self.burst_bytes, self.window_cap_bytes)
+        wait = max(0.0, (want - self._tokens) / self.bytes_per_s)
+        excess = self._window_bytes + want - self.window_cap_bytes
+        if excess > 0 and self._last_s is not None:
+            # the window frees room as its oldest writes leave it
+            for t_s, n in self._window:
+                excess -= n
+                if excess <= 0:
+                    wait = max(wait, t_s + self.window_s - self._last_s)
+                    break
+        return wait
 
 
 class FrameQueue:
@@ -124,7 +144,9 @@ class FrameQueue:
     ``pop(n)`` takes up to ``n`` bytes from the head. Past ``max_bytes``:
 
     - ``drop_oldest=True`` (output to a reader that falls behind): the oldest units not yet
-      started are dropped, so the reader gets the newest frames;
+      started are dropped, so the reader gets the newest frames; frames whose type is in
+      ``expendable_types`` (e.g. telemetry) and runs of noise go first, so that a reader
+      that falls behind loses telemetry before it loses an answer;
     - ``drop_oldest=False`` (input from a writer faster than the line): the new units are
       dropped, and once anything was dropped every byte is dropped until the next valid
       frame header, so the consumer never sees the rest of a frame cut short.
@@ -133,11 +155,14 @@ class FrameQueue:
     dropped, frames and noise).
     """
 
-    def __init__(self, max_bytes: int, *, drop_oldest: bool) -> None:
+    def __init__(
+        self, max_bytes: int, *, drop_oldest: bool, expendable_types: frozenset[int] = frozenset()
+    ) -> None:
         if not max_bytes >= 1:
             raise ValueError(f"max_bytes = {max_bytes!r}: must be >= 1")
         self.max_bytes = max_bytes
         self.drop_oldest = drop_oldest
+        self.expendable_types = frozenset(expendable_types)
         self.dropped_frames = 0
         self.dropped_bytes = 0
         self._units: deque[tuple[bytes, bool]] = deque()  # (bytes, is_frame)
@@ -273,10 +298,13 @@ class FrameQueue:
     def _add(self, unit: bytes, is_frame: bool) -> None:
         size = len(unit)
         if self.drop_oldest:
-            self._units.append((unit, is_frame))
+            units = self._units
+            units.append((unit, is_frame))
             self._queued += size
-            while len(self) > self.max_bytes and len(self._units) > 1:
-                old, old_is_frame = self._units.popleft()
+            while len(self) > self.max_bytes and len(units) > 1:
+                k = self._first_expendable()
+                old, old_is_frame = units[k]
+                del units[k]
                 self._queued -= len(old)
                 self._count_drop(old, old_is_frame)
             return
@@ -286,6 +314,16 @@ class FrameQueue:
             return
         self._units.append((unit, is_frame))
         self._queued += size
+
+    def _first_expendable(self) -> int:
+        """Index of the unit to drop first: the oldest noise or expendable frame, else the
+        oldest unit (never the newest, which was just added)."""
+        if self.expendable_types:
+            for k in range(len(self._units) - 1):
+                unit, is_frame = self._units[k]
+                if not is_frame or unit[3] in self.expendable_types:  # [3]: the type byte
+                    return k
+        return 0
 
     def _count_drop(self, unit: bytes, is_frame: bool) -> None:
         self.dropped_bytes += len(unit)

@@ -6,7 +6,8 @@ Each endpoint moves the simulated board's byte stream to and from one PC program
   ``FrameQueue``: a writer faster than the line loses whole frames, counted);
 - ``deliver(data, line_idle)`` queues bytes the board sent; ``service(wall_s)`` writes them
   at the pace of a ``LinePacer`` (never faster than the emulated line, however late the
-  process runs); a reader that falls behind loses whole frames, the oldest first, counted;
+  process runs); a reader that falls behind loses whole frames, the oldest telemetry and
+  board heartbeats first (answers only when nothing else is queued), counted;
 - ``lost_peer`` is set when the PC program went away (TCP disconnect), so that the server
   forgets what it had not yet passed to the board.
 
@@ -24,6 +25,7 @@ import socket
 from typing import Any
 
 from serial_protocol.exceptions import CommandError
+from serial_protocol.messages import MsgType
 from serial_protocol.pacing import FrameQueue, LinePacer
 
 __all__ = ["BUSY_MESSAGE", "CanEndpoint", "PtyEndpoint", "TcpEndpoint"]
@@ -31,6 +33,10 @@ __all__ = ["BUSY_MESSAGE", "CanEndpoint", "PtyEndpoint", "TcpEndpoint"]
 #: Board bytes waiting for a PC program that reads too slowly: past this, the oldest whole
 #: frames are dropped (a real USB–serial adapter with nobody reading loses bytes too).
 OUTPUT_QUEUE_BYTES = 4096
+#: What a reader that falls behind loses first: the periodic frames, of which the next one
+#: carries the news (a program waiting for its answer still gets it; the answer goes only if
+#: the queue holds nothing else).
+EXPENDABLE_TYPES = frozenset({MsgType.TELEMETRY, MsgType.BOARD_HEARTBEAT})
 #: Bytes from the PC waiting for the emulated line (0.7 s of a 115200-baud line): a program
 #: that writes faster than the line loses whole frames past this, counted.
 INPUT_BACKLOG_BYTES = 8192
@@ -70,7 +76,9 @@ class _ByteEndpoint:
 
     def __init__(self, pacer: LinePacer) -> None:
         self.pacer = pacer
-        self.outbox = FrameQueue(OUTPUT_QUEUE_BYTES, drop_oldest=True)
+        self.outbox = FrameQueue(
+            OUTPUT_QUEUE_BYTES, drop_oldest=True, expendable_types=EXPENDABLE_TYPES
+        )
         self.inbox = FrameQueue(INPUT_BACKLOG_BYTES, drop_oldest=False)
         self.lost_peer = False
         self._counters = _counters()

@@ -16,12 +16,13 @@ from serial_protocol.pacing import FrameQueue, LinePacer, frame_length_at
 @given(
     st.lists(st.tuples(st.floats(0.0, 0.05), st.integers(0, 5000)), min_size=1, max_size=300),
     st.floats(100.0, 100_000.0),
-    st.integers(1, 500),
+    st.integers(1, 20_000),
 )
 def test_pacer_never_grants_more_than_the_line_in_any_window(steps, rate, burst):
     """Whatever the caller's timing (stalls, bursts of requests), the bytes granted in any
-    interval of w seconds are at most burst + rate * w; the pacer's own peak figure is the
-    largest 100 ms window of what was spent."""
+    interval of w seconds are at most burst + rate * w, and in any 100 ms window at most
+    what the line carries in 100 ms, whatever the bucket; the pacer's own peak figure is
+    the largest 100 ms window of what was spent."""
     pacer = LinePacer(rate, burst)
     t = 0.0
     writes = []
@@ -35,6 +36,8 @@ def test_pacer_never_grants_more_than_the_line_in_any_window(steps, rate, burst)
         for w in (0.001, 0.01, 0.1, 1.0):
             sent = sum(n for t1, n in writes[k:] if t1 - t0 <= w)
             assert sent <= burst + rate * w * (1 + 1e-9) + 1e-6
+        in_window = sum(n for t1, n in writes[k:] if t1 - t0 < 0.1)
+        assert in_window <= max(1, int(rate * 0.1)) == pacer.window_cap_bytes
     peak = max((sum(n for t1, n in writes if t0 - 0.1 < t1 <= t0) for t0, _ in writes), default=0)
     assert pacer.peak_window_bytes == peak
     assert pacer.bytes_spent == sum(n for _, n in writes)
@@ -50,6 +53,18 @@ def test_pacer_refill_wait_and_misuse():
     assert pacer.allowance(100.0) == 10  # the bucket never holds more than its size
     with pytest.raises(ValueError, match="allowance"):
         pacer.spend(100.0, 11)
+    # a bucket larger than the window: the window caps what goes out, and says how long to
+    # wait for room
+    pacer = LinePacer(1000.0, 500)
+    assert pacer.window_cap_bytes == 100
+    assert pacer.allowance(0.0) == 100
+    pacer.spend(0.0, 60)
+    pacer.spend(0.05, 40)
+    assert pacer.allowance(0.05) == 0
+    assert pacer.wait_s(30) == pytest.approx(0.05)  # the 60 bytes of t = 0 leave at 0.1
+    assert pacer.wait_s(100) == pytest.approx(0.1)  # all of it once t = 0.05 has left
+    assert pacer.allowance(0.1) == 60
+    assert pacer.allowance(0.16) == 100
     for bad in ((0.0, 1), (float("nan"), 1), (10.0, 0)):
         with pytest.raises(ValueError):
             LinePacer(*bad)
@@ -165,6 +180,33 @@ def test_output_queue_keeps_a_started_frame_and_restarts_at_a_frame_after_clear(
     queue.clear()
     queue.push(a[7:] + b)  # a new reader: the rest of a is not a frame it can use
     assert queue.pop(1000) == b
+
+
+def test_a_reader_that_falls_behind_loses_telemetry_before_an_answer():
+    """serve's output queue: frames of an expendable type (telemetry) and noise go first,
+    oldest first; an answer goes only when the queue holds nothing else."""
+    tel = [frame_raw(0x82, bytes(26), k) for k in range(6)]
+    ack = frame_raw(0x83, bytes(4), 99)
+    queue = FrameQueue(3 * len(tel[0]), drop_oldest=True, expendable_types=frozenset({0x82}))
+    for frame in (tel[0], ack, tel[1], b"\x00\x01", tel[2], tel[3]):
+        queue.push(frame)
+        queue.flush_tail()
+    assert queue.pop(10_000) == ack + b"\x00\x01" + tel[2] + tel[3]
+    assert (queue.dropped_frames, queue.dropped_bytes) == (2, 2 * len(tel[0]))
+    queue.push(b"\x00\x01")  # noise, then more telemetry: the noise goes first
+    queue.flush_tail()
+    queue.push(tel[4] + tel[5] + tel[0])
+    assert queue.pop(10_000) == tel[4] + tel[5] + tel[0]
+    # only answers queued: the oldest answer goes (the queue stays within its size)
+    acks = [frame_raw(0x83, bytes(26), k) for k in range(4)]
+    for frame in acks:
+        queue.push(frame)
+    assert queue.pop(10_000) == b"".join(acks[1:])
+    # without expendable types the oldest goes, whatever it is
+    plain = FrameQueue(3 * len(tel[0]), drop_oldest=True)
+    for frame in (tel[0], ack, tel[1], tel[2], tel[3]):
+        plain.push(frame)
+    assert plain.pop(10_000) == tel[1] + tel[2] + tel[3]
 
 
 def test_a_new_reader_starts_at_a_frame_that_passes_its_check():

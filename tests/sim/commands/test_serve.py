@@ -118,12 +118,16 @@ def test_serve_on_a_tcp_port():
             _drive_a_move(client)
             # 115200 baud cannot carry a 40-byte telemetry frame every tick: every 3rd it is
             ticks = [t.tick for t in client.telemetry]
-            assert {b - a for a, b in zip(ticks, ticks[1:], strict=False)} == {3}
     finally:
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
+        err = _stop(proc)
     assert proc.returncode == 0 and "tcp:" in err
     assert "telemetry every 3 tick(s)" in err  # the decimation is stated in the log
+    steps = [b - a for a, b in zip(ticks, ticks[1:], strict=False)]
+    assert 3 in steps and all(step > 0 and step % 3 == 0 for step in steps)
+    # A frame missing from the client's telemetry is one the server dropped, counted (a
+    # reader that a loaded machine slows down falls behind the line; TCP loses nothing).
+    missing = sum(step // 3 - 1 for step in steps)
+    assert missing <= _summary(err)["frames_dropped_to_pc"], err
 
 
 def test_bad_overrides_are_command_errors():
@@ -222,7 +226,7 @@ def _summary(err: str) -> dict[str, int]:
     found = {
         "peak": r"line: peak (\d+) bytes",
         "capacity": r"window, capacity (\d+)",
-        "bucket": r"\(\+(\d+) bucket\)",
+        "bucket": r"\(bucket (\d+)\)",
         "frames_dropped_to_pc": r"reader too slow: (\d+) frames",
         "bytes_dropped_from_pc": r"writer faster than the line: \d+ frames \((\d+) bytes\)",
         "refused": r"refused (\d+)",
@@ -238,9 +242,10 @@ def _summary(err: str) -> dict[str, int]:
 
 def test_output_is_paced_to_the_line_from_the_first_tick():
     """The bytes a client receives from its connection on never exceed what the line carries
-    in that time (plus the pacer's 2 ms bucket), measured by their arrival: this bound holds
-    however loaded the machine is (a late client only widens it). Before pacing, serve sent
-    up to 2.7x the line in its first second."""
+    in that time plus the pacer's bucket (50 ms of the line), measured by their arrival: this
+    bound holds however loaded the machine is (a late client only widens it); the server
+    never wrote more than the line's capacity in any 100 ms window. Before pacing, serve
+    sent up to 2.7x the line in its first second."""
     import socket
     import time
 
@@ -255,7 +260,10 @@ def test_output_is_paced_to_the_line_from_the_first_tick():
         received = 0
         decoder = Decoder()
         t_last_s = t_connect_s
-        while time.monotonic() - t_connect_s < 2.0:
+        # 2 s of the stream, and at least 50 frames however slowly a loaded machine runs it
+        while time.monotonic() - t_connect_s < 2.0 or (
+            decoder.frames < 50 and time.monotonic() - t_connect_s < 120.0
+        ):
             try:
                 data = sock.recv(65536)
             except TimeoutError:
@@ -265,15 +273,15 @@ def test_output_is_paced_to_the_line_from_the_first_tick():
             decoder.feed(data)
         sock.close()
         line_bytes_per_s = 115200 / 10
-        assert received > 0.5 * line_bytes_per_s  # telemetry flowed (~73 % of the line)
-        assert received <= line_bytes_per_s * (t_last_s - t_connect_s) + 23
+        assert decoder.frames >= 50  # telemetry flowed
+        assert received <= line_bytes_per_s * (t_last_s - t_connect_s) + 576
         stats = decoder.stats()
         assert stats.crc_errors == stats.header_errors == stats.bytes_dropped == 0
     finally:
         err = _stop(proc)
     s = _summary(err)
-    assert s["capacity"] == 1152 and s["bucket"] == 23
-    assert 0 < s["peak"] <= s["capacity"] + s["bucket"], err
+    assert s["capacity"] == 1152 and s["bucket"] == 576
+    assert 0 < s["peak"] <= s["capacity"], err
 
 
 def test_sigterm_removes_the_link_as_ctrl_c_does(tmp_path):
@@ -311,15 +319,20 @@ def test_a_reader_that_falls_behind_loses_whole_frames(where):
             fd = sock.fileno()
         else:  # serve made the pty raw; opening it does not flush what it holds
             fd = os.open(address, os.O_RDWR | os.O_NOCTTY)
-        time.sleep(2.0)  # 8 simulated seconds of telemetry: far more than any buffer
         decoder = Decoder()
-        msgs = []
-        for _ in range(2000):
-            if not select.select([fd], [], [], 0.5)[0]:
-                break
-            msgs += decoder.feed(os.read(fd, 65536))
-            if len(msgs) > 3000:
-                break
+        deadline_s = time.monotonic() + 120.0
+        # Stop reading for 2 s (8 simulated seconds of telemetry: far more than the kernel's
+        # buffers and serve's queue hold), then read what is there; again until the stream
+        # shows the frames serve dropped (a loaded machine may run serve slowly).
+        while decoder.stats().seq_gaps == 0 and time.monotonic() < deadline_s:
+            time.sleep(2.0)
+            for _ in range(1000):  # what is there now (the server keeps writing)
+                if not select.select([fd], [], [], 0.0)[0]:
+                    break
+                data = os.read(fd, 65536)
+                if not data:
+                    break
+                decoder.feed(data)
         if where == "--tcp":
             sock.close()
         else:
