@@ -23,7 +23,8 @@ import numpy as np
 from sim.params import BridgeParams, CurrentSenseParams
 
 __all__ = [
-    "adc_counts", "apply_bridge", "quantise_duty", "read_adc", "sensed_current_a",
+    "adc_counts", "apply_bridge", "pwm_sense_table", "quantise_duty", "read_adc",
+    "sensed_current_a",
 ]  # fmt: skip
 
 I_A = 0  # the current in a plant state (sim.plant)
@@ -47,16 +48,56 @@ def adc_counts(sensed_a: Any, sense: CurrentSenseParams, noise_lsb: Any = 0.0) -
     return np.clip(counts, 0, full).astype(np.int64)
 
 
+# read_adc's ``pwm[2]`` columns: the IS offset (A of load current), the sample point, the
+# ripple factor 1 / (L f_pwm) (A per V), the settling time over the PWM period.
+PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE = range(4)
+
+
+def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n: int) -> Any:
+    """``read_adc``'s per-member table ``(n, 4)`` of the PWM-level sense, or ``(0, 4)``
+    when the sense is the averaged one (sample point 0.5, no offset, no settling)."""
+    neutral = (
+        np.all(np.asarray(sense.sample_point) == 0.5)
+        and np.all(np.asarray(sense.is_offset_ua) == 0)
+        and np.all(np.asarray(sense.is_settling_us) == 0)
+    )
+    if neutral:
+        return np.zeros((0, 4))
+    table = np.empty((n, 4))
+    table[:, PW_OFFSET] = np.asarray(sense.is_offset_ua) * 1e-6 * np.asarray(sense.k_ilis)
+    table[:, PW_SAMPLE] = sense.sample_point
+    table[:, PW_RIPPLE] = 1.0 / (np.asarray(l_h) * bridge.pwm_hz)
+    table[:, PW_SETTLE] = np.asarray(sense.is_settling_us) * 1e-6 * bridge.pwm_hz
+    return table
+
+
 @numba.njit(cache=True)
-def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out):
+def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
     current in the direction of ``sense_sign``, the high side only) through
     ``sim.bridge.adc_counts`` (rounded to nearest, plus noise, clamped to the ADC range).
-    ``draw``: one standard normal per member, or nothing for a noiseless ADC."""
+    ``draw``: one standard normal per member, or nothing for a noiseless ADC.
+
+    ``pwm = (duty, volt, table)``: the applied duty and mean output voltage ``(N,)`` and
+    ``pwm_sense_table``'s ``(N, 4)`` (empty: the averaged sense). With it, the pin is read at
+    ``sample_point`` of the high side's on-time: the current's PWM ripple, peak to peak
+    ``|volt| (1 - |duty|) / (L f_pwm)`` (sign-magnitude, R neglected over a period), shifts
+    the reading by ``(sample_point - 1/2)`` of it; a sample within the settling time of
+    the turn-on reads nothing; the offset adds while the high side switches."""
     noisy = draw.shape[0] > 0
+    duty, volt, table = pwm
+    fine = table.shape[0] > 0
     for j in range(x.shape[0]):
         v = sense_sign[j] * x[j, I_A]
         c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
+        if fine and sense_sign[j] != 0.0:
+            d = abs(duty[j])
+            s = table[j, PW_SAMPLE]
+            if s * d < table[j, PW_SETTLE]:
+                c = 0.0
+            else:
+                v = v + abs(volt[j]) * (1.0 - d) * table[j, PW_RIPPLE] * (s - 0.5)
+                c = (0.0 if 0.0 >= v else v) + table[j, PW_OFFSET]
         c = c / a_per_lsb[j] + 0.5
         if noisy:
             c = c + noise_lsb[j] * draw[j]

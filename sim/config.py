@@ -267,6 +267,8 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("current_sense", "r_is_ohm"): (1.0, 1e6, "a sense resistor"),
     ("current_sense", "adc_vref_v"): (0.5, 5.5, "an ADC reference"),
     ("current_sense", "noise_rms_lsb"): (0.0, 1000.0, "ADC noise"),
+    ("current_sense", "is_offset_ua"): (0.0, 1000.0, "an IS pin's offset current"),
+    ("current_sense", "is_settling_us"): (0.0, 50.0, "an IS pin's settling time"),
     ("motor", "r_ohm"): (1e-3, 1e3, "a DC motor's armature resistance"),
     ("motor", "l_h"): (1e-6, 1.0, "a DC motor's armature inductance"),
     ("motor", "kt_nm_a"): (1e-4, 10.0, "a DC motor's torque constant"),

@@ -42,7 +42,7 @@ from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Fault, Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
 from sim import tick as st
-from sim.bridge import apply_bridge, read_adc
+from sim.bridge import apply_bridge, pwm_sense_table, read_adc
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
@@ -343,6 +343,9 @@ class Simulation:
         self._a_per_lsb_n, self._adc_noise_n, self._arr_n, self._vs_n = (
             per_member(v, n) for v in parameters
         )
+        # The IS pin within the PWM period (sample point, ripple, offset, settling): empty
+        # for the averaged sense (sim.bridge.read_adc).
+        self._sense_table = pwm_sense_table(plant.current_sense, plant.bridge, plant.motor.l_h, n)
         signal_row = getattr(firmware, "signal_row", None)
         if signal_row is None:
             pick, signals = itemgetter(*FW_FIELDS), firmware.signals
@@ -545,7 +548,8 @@ class Simulation:
         txbuf = np.empty((n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
         en_now = np.zeros(n, dtype=bool)
         counts, adc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
-        duty, enable = np.zeros(n), np.zeros(n, dtype=bool)
+        # The last applied duty (the IS pin reads within its PWM period, sim.bridge.read_adc).
+        duty, enable = self._duty.astype(float), self._enable.astype(bool)
         if keep:
             arrays = self._arrays
             logs = (
@@ -559,7 +563,7 @@ class Simulation:
                 np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty,
             )  # fmt: skip
         bridge_params = (self._arr_n, self._vs_n)
-        adc_params = (self._a_per_lsb_n, self._adc_noise_n)
+        adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
         bps = float(bytes_per_s(uart_tx.baud))
         x0, x1 = (x, spare)
         while True:
@@ -708,7 +712,7 @@ class Simulation:
             draw = self._adc_draw() if self._adc_noisy else _NO_DRAW
             adc = np.empty(n, dtype=np.int64)
             read_adc(x, self._sense_sign, self._a_per_lsb_n, self._adc_noise_n, draw,
-                        self._adc_full, adc)  # fmt: skip
+                     self._adc_full, adc, (self._duty, self._volt, self._sense_table))  # fmt: skip
             bus_adc = np.empty(n, dtype=np.int64)
             read_bus_adc(self.bus.kernel_args(), self._vs_n, self._adc_full, bus_adc)
             extra = () if not self._reads_bus else (int(bus_adc[0]) if scalar else bus_adc,)

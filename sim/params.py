@@ -193,17 +193,37 @@ class BridgeParams:
 
 @dataclass(frozen=True)
 class CurrentSenseParams:
-    """BTN7971B IS pin -> sense resistor -> STM32 12-bit ADC (high-side current only)."""
+    """BTN7971B IS pin -> sense resistor -> STM32 12-bit ADC (high-side current only).
+
+    Within the PWM period (``sim.bridge.read_adc``): ``sample_point`` is where in the high
+    side's on-time the ADC samples (0.5, the middle, reads the period's mean current; 0 the
+    ripple's valley, 1 its peak); ``is_offset_ua`` the IS pin's current with the high side
+    on and no load (BTS7960B datasheet 4.4.9, I_ISH: up to 200 uA); ``is_settling_us`` the
+    pin's settling after the high side turns on (a sample earlier reads nothing). The
+    defaults (0.5, 0, 0) are the averaged sense of the model so far, bit for bit.
+    """
 
     k_ilis: float = 8500.0
     r_is_ohm: float = 1000.0
     adc_vref_v: float = 3.3
     adc_bits: int = 12
     noise_rms_lsb: float = 0.0
+    sample_point: float = 0.5
+    is_offset_ua: float = 0.0
+    is_settling_us: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "k_ilis", "r_is_ohm", "adc_vref_v")
-        _non_negative(self, "noise_rms_lsb")
+        _non_negative(self, "noise_rms_lsb", "is_offset_ua", "is_settling_us")
+        _check(
+            self,
+            "sample_point",
+            _finite(self.sample_point)
+            and bool(
+                np.all((np.asarray(self.sample_point) >= 0) & (np.asarray(self.sample_point) <= 1))
+            ),
+            "must be in [0, 1] (a fraction of the high side's on-time)",
+        )
         _check(
             self,
             "adc_bits",

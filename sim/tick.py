@@ -113,7 +113,8 @@ def run_ticks(
     xlog, signals, voltage, bus_log = logs
     bus_v = bus[0]
     latency, offset, enc_noise, counts_per_rad, counts_per_rev, enc_inl = enc_params
-    a_per_lsb, adc_noise = adc_params
+    a_per_lsb, adc_noise, sense_table = adc_params
+    pwm = (duty, volt, sense_table)
     arr, supply_v = bridge_params
     n = x0.shape[0]
     no_draw = np.empty(0)
@@ -201,7 +202,7 @@ def run_ticks(
                         return STOP_NOISE
                     draw = adc_block[ctx[CX_ADC_ROW]]
                     ctx[CX_ADC_ROW] += 1
-                read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc)
+                read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc, pwm)
                 read_bus_adc(bus, supply_v, adc_full, C[C_BUS_ADC])
                 en_now[:] = enabled
                 stage = BRIDGE

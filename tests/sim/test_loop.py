@@ -368,7 +368,10 @@ def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
     want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense)
     for draw, noise in ((np.empty(0), np.zeros(n)), (rng.standard_normal(n), np.full(n, 3.0))):
         got = np.empty(n, dtype=np.int64)
-        read_adc(x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got)
+        read_adc(
+            x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got,
+            (np.zeros(len(x)), np.zeros(len(x)), np.zeros((0, 4))),
+        )  # fmt: skip
         if draw.size:
             want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense, noise * draw)
         np.testing.assert_array_equal(got, want)
