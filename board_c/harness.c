@@ -95,6 +95,22 @@ static void on_frame(void *ctx, uint8_t type, uint8_t seq, const uint8_t *payloa
             printf(" %u %lu", c.u.queue_control.action,
                    (unsigned long)c.u.queue_control.override_pct);
             break;
+        case TT_STREAM_CONTROL:
+            printf(" %u %u %lu %u", c.u.stream_control.action, c.u.stream_control.interp,
+                   (unsigned long)c.u.stream_control.period, c.u.stream_control.prefill);
+            break;
+        case TT_STREAM_POINTS: {
+            int k;
+            printf(" %lu %u", (unsigned long)c.u.stream_points.first_index,
+                   c.u.stream_points.count);
+            for (k = 0; k < 5; k++) printf(" %ld", (long)c.u.stream_points.pos[k]);
+            for (k = 0; k < 5; k++) printf(" %lu", (unsigned long)c.u.stream_points.vel[k]);
+            break;
+        }
+        case TT_JOG:
+            printf(" %lu %lu %u", (unsigned long)c.u.jog.vel, (unsigned long)c.u.jog.a_max,
+                   c.u.jog.timeout_ms);
+            break;
         default: break;
         }
     }
@@ -129,6 +145,9 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.telemetry_min_decimation = (uint16_t)v(t, ok); m.heartbeat_ms = (uint16_t)v(t, ok);
         m.watchdog_ms = (uint16_t)v(t, ok); m.rx_silence_ms = (uint16_t)v(t, ok);
         m.baud = v(t, ok);
+        m.queue_blocks = (uint8_t)v(t, ok); m.stream_points = (uint8_t)v(t, ok);
+        m.stream_period_min_ms = (uint16_t)v(t, ok);
+        m.stream_period_max_ms = (uint16_t)v(t, ok);
         return tt_encode_hello_reply(p, &m);
     }
     case TT_TELEMETRY: {
@@ -186,6 +205,8 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.rx_seq_gaps = v(t, ok); m.rx_overflow_bytes = v(t, ok);
         m.rx_silence_discards = v(t, ok); m.rx_nacked = v(t, ok);
         m.tx_telemetry_dropped = v(t, ok);
+        m.queue_free = (uint8_t)v(t, ok); m.stream_free = (uint8_t)v(t, ok);
+        m.stream_state = (uint8_t)v(t, ok); m.stream_underruns = v(t, ok);
         return tt_encode_board_heartbeat(p, &m);
     }
     case TT_FAULT_INFO: {
@@ -201,6 +222,13 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.free_slots = (uint8_t)v(t, ok); m.queued = (uint8_t)v(t, ok);
         m.done = v(t, ok); m.override_pct = v(t, ok);
         return tt_encode_queue_status(p, &m);
+    }
+    case TT_STREAM_STATUS: {
+        tt_stream_status m;
+        m.cmd_id = (uint16_t)v(t, ok); m.state = (uint8_t)v(t, ok);
+        m.free_slots = (uint8_t)v(t, ok); m.next_index = v(t, ok);
+        m.underruns = v(t, ok); m.start_pos = (int32_t)v(t, ok);
+        return tt_encode_stream_status(p, &m);
     }
     default:
         *ok = 0;

@@ -239,8 +239,8 @@ void tt_decoder_tick(tt_decoder *d, int bytes_this_tick, tt_frame_fn fn, void *c
 /* ------------------------------------------------------------------ commands */
 
 /* Payload length of each command type (index = type), 0 = not a command. */
-static const uint8_t command_len[0x10] = {
-    0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5, 16, 9,
+static const uint8_t command_len[0x13] = {
+    0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5, 16, 9, 11, 49, 14,
 };
 
 int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cmd,
@@ -323,6 +323,35 @@ int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cm
             return TT_OUT_OF_RANGE;
         }
         break;
+    case TT_STREAM_CONTROL:
+        cmd->u.stream_control.action = p[4];
+        cmd->u.stream_control.interp = p[5];
+        cmd->u.stream_control.period = get_u32(p + 6);
+        cmd->u.stream_control.prefill = p[10];
+        if (p[4] > 3u) {
+            *field = 2;
+            return TT_OUT_OF_RANGE;
+        }
+        if (p[5] > 1u) {
+            *field = 3;
+            return TT_OUT_OF_RANGE;
+        }
+        break;
+    case TT_STREAM_POINTS: {
+        int k;
+        cmd->u.stream_points.first_index = get_u32(p + 4);
+        cmd->u.stream_points.count = p[8];
+        for (k = 0; k < 5; k++) {
+            cmd->u.stream_points.pos[k] = (int32_t)get_u32(p + 9 + 4 * k);
+            cmd->u.stream_points.vel[k] = get_u32(p + 29 + 4 * k);
+        }
+        break;
+    }
+    case TT_JOG:
+        cmd->u.jog.vel = get_u32(p + 4);
+        cmd->u.jog.a_max = get_u32(p + 8);
+        cmd->u.jog.timeout_ms = get_u16(p + 12);
+        break;
     default: /* Heartbeat, ClearFault, GetLimits, GetStatus: cmd_id and session only */
         break;
     }
@@ -351,6 +380,10 @@ size_t tt_encode_hello_reply(uint8_t *out, const tt_hello_reply *m)
     put_u16(out, &at, m->watchdog_ms);
     put_u16(out, &at, m->rx_silence_ms);
     put_u32(out, &at, m->baud);
+    put_u8(out, &at, m->queue_blocks);
+    put_u8(out, &at, m->stream_points);
+    put_u16(out, &at, m->stream_period_min_ms);
+    put_u16(out, &at, m->stream_period_max_ms);
     return at;
 }
 
@@ -458,6 +491,10 @@ size_t tt_encode_board_heartbeat(uint8_t *out, const tt_board_heartbeat *m)
     put_u32(out, &at, m->rx_silence_discards);
     put_u32(out, &at, m->rx_nacked);
     put_u32(out, &at, m->tx_telemetry_dropped);
+    put_u8(out, &at, m->queue_free);
+    put_u8(out, &at, m->stream_free);
+    put_u8(out, &at, m->stream_state);
+    put_u32(out, &at, m->stream_underruns);
     return at;
 }
 
@@ -482,5 +519,17 @@ size_t tt_encode_queue_status(uint8_t *out, const tt_queue_status *m)
     put_u8(out, &at, m->queued);
     put_u32(out, &at, m->done);
     put_u32(out, &at, m->override_pct);
+    return at;
+}
+
+size_t tt_encode_stream_status(uint8_t *out, const tt_stream_status *m)
+{
+    size_t at = 0;
+    put_u16(out, &at, m->cmd_id);
+    put_u8(out, &at, m->state);
+    put_u8(out, &at, m->free_slots);
+    put_u32(out, &at, m->next_index);
+    put_u32(out, &at, m->underruns);
+    put_u32(out, &at, (uint32_t)m->start_pos);
     return at;
 }

@@ -39,9 +39,11 @@ enum tt_type {
     TT_SET_ENABLE = 0x05, TT_CLEAR_FAULT = 0x06, TT_SET_GAINS = 0x07, TT_GET_GAINS = 0x08,
     TT_SET_LIMITS = 0x09, TT_GET_LIMITS = 0x0A, TT_GET_STATUS = 0x0B, TT_SET_TELEMETRY = 0x0C,
     TT_GET_FAULT = 0x0D, TT_QUEUE_SEGMENT = 0x0E, TT_QUEUE_CONTROL = 0x0F,
+    TT_STREAM_CONTROL = 0x10, TT_STREAM_POINTS = 0x11, TT_JOG = 0x12,
     TT_HELLO_REPLY = 0x81, TT_TELEMETRY = 0x82, TT_ACK = 0x83, TT_NACK = 0x84,
     TT_FAULT_REPORT = 0x85, TT_GAINS = 0x86, TT_LIMITS = 0x87, TT_STATUS = 0x88,
-    TT_BOARD_HEARTBEAT = 0x89, TT_FAULT_INFO = 0x8A, TT_QUEUE_STATUS = 0x8B
+    TT_BOARD_HEARTBEAT = 0x89, TT_FAULT_INFO = 0x8A, TT_QUEUE_STATUS = 0x8B,
+    TT_STREAM_STATUS = 0x8C
 };
 
 enum tt_nack_code {
@@ -49,7 +51,7 @@ enum tt_nack_code {
     TT_UNSTABLE_GAINS = 5, TT_FAULT_ACTIVE = 6, TT_DISABLED = 7, TT_NOT_A_COMMAND = 8,
     TT_NO_SESSION = 9, TT_STALE_SESSION = 10, TT_UNSUPPORTED_VERSION = 11, TT_TOO_HIGH = 12,
     TT_TOO_LOW = 13, TT_BUSY = 14, TT_TRAVEL = 15,
-    TT_QUEUE_FULL = 16
+    TT_QUEUE_FULL = 16, TT_NO_STREAM = 17
 };
 
 /* ------------------------------------------------------------------ checks and framing */
@@ -121,6 +123,14 @@ typedef struct {
         struct { uint8_t bit; } get_fault;
         struct { int32_t target; uint32_t v_max, dwell; } queue_segment;
         struct { uint8_t action; uint32_t override_pct; } queue_control;
+        struct { uint8_t action, interp; uint32_t period; uint8_t prefill; } stream_control;
+        struct {
+            uint32_t first_index;
+            uint8_t count;
+            int32_t pos[5]; /* 1e-4 deg */
+            uint32_t vel[5];
+        } stream_points;
+        struct { uint32_t vel, a_max; uint16_t timeout_ms; } jog;
     } u; /* f32 fields as their bit patterns (tt_f32_finite, then memcpy into a float) */
 } tt_command;
 
@@ -144,6 +154,8 @@ typedef struct {
     uint8_t reply_queue_frames;
     uint16_t telemetry_min_decimation, heartbeat_ms, watchdog_ms, rx_silence_ms;
     uint32_t baud;
+    uint8_t queue_blocks, stream_points; /* appended: programs and streams */
+    uint16_t stream_period_min_ms, stream_period_max_ms;
 } tt_hello_reply;
 
 typedef struct {
@@ -185,6 +197,8 @@ typedef struct {
     uint8_t state;
     uint32_t fault_flags, rx_frames, rx_crc_errors, rx_header_errors, rx_bytes_dropped,
         rx_seq_gaps, rx_overflow_bytes, rx_silence_discards, rx_nacked, tx_telemetry_dropped;
+    uint8_t queue_free, stream_free, stream_state; /* appended: flow control */
+    uint32_t stream_underruns;
 } tt_board_heartbeat;
 typedef struct {
     uint16_t cmd_id;
@@ -196,6 +210,12 @@ typedef struct {
     uint8_t state, free_slots, queued;
     uint32_t done, override_pct; /* override_pct: f32 bits */
 } tt_queue_status;
+typedef struct {
+    uint16_t cmd_id;
+    uint8_t state, free_slots;
+    uint32_t next_index, underruns;
+    int32_t start_pos; /* 1e-4 deg */
+} tt_stream_status;
 
 /* Each writes the payload into `out` (TT_MAX_PAYLOAD bytes) and returns its length. */
 size_t tt_encode_hello_reply(uint8_t *out, const tt_hello_reply *m);
@@ -207,6 +227,7 @@ size_t tt_encode_gains(uint8_t *out, const tt_gains *m);
 size_t tt_encode_limits(uint8_t *out, const tt_limits *m);
 size_t tt_encode_status(uint8_t *out, const tt_status *m);
 size_t tt_encode_board_heartbeat(uint8_t *out, const tt_board_heartbeat *m);
+size_t tt_encode_stream_status(uint8_t *out, const tt_stream_status *m);
 size_t tt_encode_fault_info(uint8_t *out, const tt_fault_info *m);
 size_t tt_encode_queue_status(uint8_t *out, const tt_queue_status *m);
 

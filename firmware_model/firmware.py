@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model import programs, safety
+from firmware_model import programs, safety, stream
 from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import (
@@ -53,6 +53,7 @@ from serial_protocol.messages import (
     FAULT_FLAG,
     NO_FIELD,
     PROTOCOL_VERSION,
+    STREAM_POINTS_PER_FRAME,
     Ack,
     BoardHeartbeat,
     ClearFault,
@@ -67,6 +68,7 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Jog,
     Limits,
     Loop,
     Malformed,
@@ -86,6 +88,11 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
 )
 
 __all__ = ["FW_VERSION", "SIGNAL_NAMES", "Firmware"]
@@ -117,13 +124,15 @@ _LOOP_GAINS = {
 # again, not re-applied.
 _MUTATING = (
     Move, Stop, SetGains, SetLimits, ClearFault, SetEnable, SetTelemetry, QueueSegment,
-    QueueControl,
+    QueueControl, StreamControl, StreamPoints, Jog,
 )  # fmt: skip
 #: Smallest positive rate or limit a command may carry (deg/s, deg/s², A, deg): the lower
 #: bound of the documented ranges (docs/protocol.md section 4).
 MIN_POSITIVE = 1e-3
 #: Longest dwell of a program block (s).
 MAX_DWELL_S = 3600.0
+#: A jog stops this far inside the travel end (deg).
+_JOG_END_MARGIN_DEG = 1e-6
 #: Smallest receive ring of the board (bytes per servo tick); at high baud rates the ring
 #: holds two ticks' worth of the line. More in one tick is lost and counted.
 RX_BUFFER_BYTES = 256
@@ -229,6 +238,12 @@ class Firmware:
         # The motion-program queue (firmware_model/programs.py); its profile is followed
         # through the trapezoid planner like a Move's.
         self.program = programs.ProgramQueue(programs.QUEUE_CAPACITY, self.dt_s)
+        # The point stream (firmware_model/stream.py), followed the same way.
+        self.stream = stream.PointStream(stream.STREAM_CAPACITY)
+        # A jog's dead-man timeout (ticks without a frame of the session; 0 = none) and
+        # its deceleration.
+        self._jog_timeout_ticks = 0
+        self._jog_a_max_dps2 = lim.a_max_dps2
         # Link.
         self.decoder = frame.Decoder()
         self._replies: deque[Any] = deque()
@@ -263,6 +278,7 @@ class Firmware:
             "tx_replies_dropped": 0,
             "sessions": 0,
             "heartbeats": 0,
+            "jog_timeouts": 0,
         }
         self._tx_frames = 0
         self._tx_bytes = 0
@@ -451,6 +467,7 @@ class Firmware:
         fs[ftick.FS_OC_THR] = self._oc_thr_a
         fi[ftick.FI_TICK] = self.tick
         fi[ftick.FI_HEARTBEAT] = self._heartbeat_ticks
+        fi[ftick.FI_JOG_TIMEOUT] = self._jog_timeout_ticks
         mode = self._mode
         fi[ftick.FI_MODE] = _MODES[mode]
         fi[ftick.FI_MOVING] = self._moving
@@ -540,6 +557,8 @@ class Firmware:
 
     def _hold_here(self) -> None:
         self.program.clear()
+        self.stream.clear()
+        self._jog_timeout_ticks = 0
         self._mode = "hold"
         self._moving = False
         self.sp_pos_deg = self._pos0()
@@ -569,6 +588,8 @@ class Firmware:
     # ------------------------------------------------------------------ safety
     def _check(self) -> None:
         law, s = self.law, self.params.safety
+        if self._jog_timeout_ticks and self.tick - self._last_rx_tick > self._jog_timeout_ticks:
+            self._jog_expired()
         following = self._mode != "step"
         watchdog = bool(self._watchdog_ticks) and (
             self.tick - self._last_rx_tick > self._watchdog_ticks
@@ -715,6 +736,9 @@ class Firmware:
                 self._counts["duplicates"] += 1
                 self._queue(self._last_reply)
                 return
+            # time's bookkeeping first (a stream that ran dry), so that a refused command
+            # changes nothing
+            self.stream.update(self.tick * self.dt_s)
             reply = self._apply(msg)
             self._last_cmd, self._last_reply = msg, reply
             if isinstance(reply, Ack):
@@ -748,6 +772,9 @@ class Firmware:
             heartbeat_ms=min(65535, round(p.telemetry.heartbeat_s * 1000)),
             watchdog_ms=min(65535, round(p.safety.watchdog_s * 1000)),
             rx_silence_ms=round(frame.RX_SILENCE_S * 1000), baud=p.telemetry.baud,
+            queue_blocks=self.program.capacity, stream_points=self.stream.capacity,
+            stream_period_min_ms=round(stream.PERIOD_MIN_S * 1000),
+            stream_period_max_ms=round(stream.PERIOD_MAX_S * 1000),
         )  # fmt: skip
 
     def _query(self, msg: Any) -> Any:
@@ -793,6 +820,7 @@ class Firmware:
         """The board's heartbeat now: state, faults and the receiver's counters."""
         d = self.decoder
         w = 0xFFFFFFFF
+        t_s = self.tick * self.dt_s
         return BoardHeartbeat(
             tick=self.tick, session=self.session, state=State(self._state0()),
             fault_flags=int(self._flags[0]), rx_frames=d.frames & w,
@@ -801,6 +829,8 @@ class Firmware:
             rx_overflow_bytes=self._rx_overflow_bytes & w,
             rx_silence_discards=d.partial_discards & w, rx_nacked=self._counts["nacks"] & w,
             tx_telemetry_dropped=self._tx_dropped & w,
+            queue_free=self.program.free(t_s), stream_free=self.stream.free(t_s),
+            stream_state=self.stream.state, stream_underruns=self.stream.underruns & w,
         )  # fmt: skip
 
     def _state0(self) -> int:
@@ -823,12 +853,17 @@ class Firmware:
             SetTelemetry: self._cmd_set_telemetry,
             QueueSegment: self._cmd_queue_segment,
             QueueControl: self._cmd_queue_control,
+            StreamControl: self._cmd_stream_control,
+            StreamPoints: self._cmd_stream_points,
+            Jog: self._cmd_jog,
         }[type(msg)]
         refusal = handler(msg)
         if refusal is not None:
             return self._nack(msg, *refusal)
         if isinstance(msg, QueueSegment | QueueControl):
             return self.queue_status(msg.cmd_id)
+        if isinstance(msg, StreamControl | StreamPoints):
+            return self.stream_status(msg.cmd_id)
         return Ack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE))
 
     def _motion_refused(self) -> _Refusal | None:
@@ -859,7 +894,7 @@ class Firmware:
             return refused
         t_s = self.tick * self.dt_s
         if kind is None:  # Profile.STEP: no planning, the setpoint jumps to the target
-            self.program.clear()
+            self._end_other_motion()
             self._mode = "step"
             self._v_clamp_dps = m.v_max_dps
         else:
@@ -884,7 +919,7 @@ class Firmware:
             if refusal is not None:
                 return refusal
             self._planners[kind] = planner
-            self.program.clear()  # a Move replaces a running program
+            self._end_other_motion()  # a Move replaces a running program, stream or jog
             self._mode, self._kind, self._j_max = "plan", kind, m.j_max_dps3
             self._move_limits = (m.v_max_dps, m.a_max_dps2)
             self._v_clamp_dps = self.v_max_dps
@@ -920,7 +955,7 @@ class Firmware:
             self._moving = True
         self._planners[kind] = planner
         self._target_deg = profile.p1
-        self.program.clear()  # Stop aborts a program (QueueControl HOLD keeps it)
+        self._end_other_motion()  # Stop aborts a program (QueueControl HOLD keeps it)
         return None
 
     # ------------------------------------------------------------------ programs
@@ -939,6 +974,8 @@ class Firmware:
         prog = self.program
         if not prog.active() and self._mode != "hold" and self._moving:
             return NackCode.BUSY, None, 0.0  # a Move in progress: the program starts at rest
+        if self.stream.active():
+            return NackCode.BUSY, None, 0.0  # a stream in progress
         t_s = self.tick * self.dt_s
         if prog.free(t_s) == 0:
             return NackCode.QUEUE_FULL, None, float(prog.capacity)
@@ -950,6 +987,11 @@ class Firmware:
             )  # fmt: skip
         except ValueError:
             return NackCode.OUT_OF_RANGE, None, 0.0
+        # the whole program's profile, checked as a Move's (its targets are in the travel
+        # and its blocks monotone, so this holds; the check keeps it so)
+        refusal = self._travel_refusal(profile, "target_deg")
+        if refusal is not None:
+            return refusal
         self.program = trial
         if not trial.held:
             self._follow_program(profile, trial.t_start_s)
@@ -1005,7 +1047,9 @@ class Firmware:
         return None
 
     def _follow_program(self, profile: Any, t_start_s: float) -> None:
-        """Follow the program's profile through the trapezoid planner (as a Move)."""
+        """Follow a program's or a stream's profile through the trapezoid planner (as a
+        Move)."""
+        self._jog_timeout_ticks = 0
         planner = OnlinePlanner("trapezoid")
         planner.reset(profile.p0)
         planner.profile, planner.t_start_s = profile, t_start_s
@@ -1017,6 +1061,141 @@ class Firmware:
         self._target_deg = profile.p1
         self._moving = True
         self._moved = True
+
+    def _end_other_motion(self) -> None:
+        """A Move, Stop or Jog takes over: the program, the stream and a jog's timeout end."""
+        self.program.clear()
+        self.stream.clear()
+        self._jog_timeout_ticks = 0
+
+    # ------------------------------------------------------------------ streams
+    def _cmd_stream_control(self, m: StreamControl) -> _Refusal | None:
+        action = StreamAction(m.action)
+        t_s = self.tick * self.dt_s
+        st = self.stream
+        st.update(t_s)
+        if action is StreamAction.STATUS:
+            return None
+        if action is StreamAction.START:
+            refusal = _check_ranges([
+                ("period_s", m.period_s, stream.PERIOD_MIN_S, stream.PERIOD_MAX_S),
+                ("prefill", m.prefill, 1, st.capacity),
+            ])  # fmt: skip
+            if refusal is not None:
+                return refusal
+            refused = self._motion_refused()
+            if refused is not None:
+                return refused
+            self.program.finish(t_s)
+            if self._moving or self.program.active() or st.active():
+                return NackCode.BUSY, None, 0.0  # a stream starts from rest
+            lim = self.params.limits
+            st.start(self.sp_pos_deg, float(m.period_s), m.interp, int(m.prefill),
+                     v_max_dps=self.v_max_dps, a_max_dps2=self.a_max_dps2,
+                     travel_deg=(lim.travel_min_deg, lim.travel_max_deg))  # fmt: skip
+            return None
+        if action is StreamAction.END:
+            if st.state in (StreamState.FILLING, StreamState.RUNNING):
+                followed = st.end(t_s)
+                if followed is not None:
+                    self._follow_program(*followed)
+            return None
+        # ABORT: the board's Stop (which closes the stream)
+        if not st.active():
+            return None
+        return self._cmd_stop(Stop(m.cmd_id, 0.0))
+
+    def _cmd_stream_points(self, m: StreamPoints) -> _Refusal | None:
+        refusal = _check_ranges([("count", m.count, 1, STREAM_POINTS_PER_FRAME)])
+        if refusal is not None:
+            return refusal
+        points = m.points
+        for k, (_, v) in enumerate(points):
+            if not math.isfinite(v):
+                return NackCode.NOT_FINITE, f"vel{k}_dps", 0.0
+        refused = self._motion_refused()
+        if refused is not None:
+            return refused
+        t_s = self.tick * self.dt_s
+        refusal = self.stream.check(t_s, m.first_index, points)
+        if refusal is not None:
+            return refusal
+        followed = self.stream.add(t_s, points)
+        if followed is not None:
+            self._follow_program(*followed)
+        return None
+
+    def stream_status(self, cmd_id: int = 0) -> StreamStatus:
+        """The point stream's state now (the answer to the stream commands)."""
+        st = self.stream
+        t_s = self.tick * self.dt_s
+        free = st.free(t_s)
+        w = 0xFFFFFFFF
+        return StreamStatus(cmd_id, st.state, free, st.next_index & w, st.underruns & w,
+                            safety.wire_pos(st.start_pos_deg))  # fmt: skip
+
+    # ------------------------------------------------------------------ jog
+    def _cmd_jog(self, m: Jog) -> _Refusal | None:
+        refusal = _check_ranges([
+            ("vel_dps", m.vel_dps, -self.v_max_dps, self.v_max_dps),
+            ("a_max_dps2", m.a_max_dps2, MIN_POSITIVE, self.a_max_dps2),
+            ("timeout_ms", m.timeout_ms, 0, 60000),
+        ])  # fmt: skip
+        if refusal is not None:
+            return refusal
+        refused = self._motion_refused()
+        if refused is not None:
+            return refused
+        t_s = self.tick * self.dt_s
+        if self._mode == "plan":
+            planner = copy.copy(self._planners[self._kind])
+        elif self._mode == "step":
+            planner = self._planner_from_axis("trapezoid", t_s)
+        else:
+            planner = OnlinePlanner("trapezoid")
+            planner.reset(self.sp_pos_deg)
+        a_max = float(m.a_max_dps2)
+        lim = self.params.limits
+        try:
+            if m.vel_dps == 0.0:
+                profile = planner.stop(t_s, a_max=a_max, kind="trapezoid")
+            else:
+                # a move to the travel end at |vel|: the stop there is planned with it (1e-6
+                # deg inside, below the wire's step: the plan's rounding stays in the travel)
+                end = lim.travel_max_deg - _JOG_END_MARGIN_DEG if m.vel_dps > 0.0 else (
+                    lim.travel_min_deg + _JOG_END_MARGIN_DEG)  # fmt: skip
+                profile = planner.command(t_s, end, v_max=abs(m.vel_dps), a_max=a_max,
+                                          kind="trapezoid")  # fmt: skip
+        except ValueError:
+            return NackCode.OUT_OF_RANGE, None, 0.0
+        refusal = self._travel_refusal(profile, "a_max_dps2")
+        if refusal is not None:
+            return refusal  # moving too fast towards an end to stop there at a_max_dps2
+        self._end_other_motion()
+        self._planners["trapezoid"] = planner
+        self._mode, self._kind = "plan", "trapezoid"
+        self._move_limits = (max(abs(m.vel_dps), MIN_POSITIVE), a_max)
+        self._v_clamp_dps = self.v_max_dps
+        self._target_deg = profile.p1
+        self._moving = self._moved = True
+        ticks = math.ceil(m.timeout_ms * 1e-3 * self.params.servo.tick_hz - 1e-9)
+        self._jog_timeout_ticks = max(1, ticks) if m.timeout_ms else 0
+        self._jog_a_max_dps2 = a_max
+        return None
+
+    def _jog_expired(self) -> None:
+        """No frame of the session within the jog's timeout: decelerate to rest at the
+        jog's acceleration (within the travel: the jog's own stop at the end is at it)."""
+        self._jog_timeout_ticks = 0
+        self._counts["jog_timeouts"] += 1
+        if self._mode != "plan":
+            return
+        t_s = self.tick * self.dt_s
+        planner = self._planners[self._kind]
+        profile = planner.stop(t_s, a_max=self._jog_a_max_dps2, kind="trapezoid")
+        self._planners["trapezoid"] = planner
+        self._kind = "trapezoid"
+        self._target_deg = profile.p1
 
     def queue_status(self, cmd_id: int = 0) -> QueueStatus:
         """The program queue's state now (the answer to the queue commands)."""

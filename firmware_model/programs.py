@@ -183,13 +183,13 @@ class ProgramQueue:
         started the pending blocks with."""
         la = self._la
         assert la is not None
-        v_in = la._v_in
+        v_in = la.v_in
         rest = list(self._pending)
         self._la = LookaheadQueue(
             self._p_next, v_max=self._limits[0], a_max=self._limits[1], period=self.period_s,
             window=self.capacity,
         )  # fmt: skip
-        self._la._v_in = v_in
+        self._la.v_in = v_in
         self._pending.clear()
         for target, v_max, dwell in rest:
             self._la.append(target, v_max=max(self._scaled(v_max), v_in), stop=dwell > 0.0)
@@ -215,7 +215,7 @@ class ProgramQueue:
         assert la is not None
         self._p_next = last.p_start + last.direction * float(s)
         self._t_next_s = t_s
-        la._v_in = max(0.0, float(ds))
+        la.v_in = max(0.0, float(ds))
         self._pending.appendleft([last.target_deg, last.v_max_dps, 0.0])
         self._rebuild_pending()
 

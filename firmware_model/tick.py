@@ -42,9 +42,9 @@ N_FS = 23
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
     FI_OC_ANY, FI_OC_SAMPLES, FI_TX_FRAMES, FI_TX_BYTES, FI_TX_DROPPED, FI_JUMP, FI_STUCK,
-    FI_HEARTBEAT,
-) = range(16)  # fmt: skip
-N_FI = 16
+    FI_HEARTBEAT, FI_JOG_TIMEOUT,
+) = range(17)  # fmt: skip
+N_FI = 17
 MODE_HOLD, MODE_PLAN, MODE_STEP = 0, 1, 2
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
@@ -142,8 +142,11 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof):
 def trip_screen(P, C, fs, fi):
     """Whether a member meets a trip condition after this tick's servo step (encoder jump
     or stuck, over-speed, position outside ``[FS_POS_LO, FS_POS_HI]``, following error
-    against ``fs[FS_SP_POS]``, watchdog)."""
+    against ``fs[FS_SP_POS]``, watchdog, a jog's timeout)."""
     if fi[FI_WATCHDOG] and fi[FI_TICK] - fi[FI_LAST_RX] > fi[FI_WATCHDOG]:
+        return True
+    # a jog's dead-man timeout (Firmware._check plans the stop)
+    if fi[FI_JOG_TIMEOUT] and fi[FI_TICK] - fi[FI_LAST_RX] > fi[FI_JOG_TIMEOUT]:
         return True
     p = fs[FS_SP_POS]
     following = fs[FS_FOLLOWING] if fi[FI_MODE] != MODE_STEP else math.inf

@@ -419,6 +419,20 @@ class LookaheadQueue:
     def __len__(self) -> int:
         return len(self._pending)
 
+    @property
+    def v_in(self) -> float:
+        """The speed the first pending segment starts with (final: the released segments
+        end at it). A queue that takes over a path already moving (the board replanning
+        the block in progress) sets it before appending; it must be >= 0 and reachable."""
+        return self._v_in
+
+    @v_in.setter
+    def v_in(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"v_in = {value!r}: must be finite and >= 0")
+        self._v_in = value
+
     def append(
         self, point: Array | list | float, *, v_max: float | None = None, stop: bool = False
     ) -> list[PathSegment]:

@@ -52,6 +52,8 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
+    Jog,
     Limits,
     Loop,
     Malformed,
@@ -73,6 +75,11 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 
@@ -292,6 +299,10 @@ _ROWS: tuple[_Row, ...] = (
             _f("watchdog_ms", "u16", "ms", "command watchdog; 0 = off"),
             _f("rx_silence_ms", "u16", "ms", "silence that discards a partial frame"),
             _f("baud", "u32", "baud", "UART rate the board's telemetry budget assumes"),
+            _f("queue_blocks", "u8", "blocks", "program queue size (`QueueSegment`)"),
+            _f("stream_points", "u8", "points", "point buffer size (`StreamPoints`)"),
+            _f("stream_period_min_ms", "u16", "ms", "shortest stream period accepted"),
+            _f("stream_period_max_ms", "u16", "ms", "longest stream period accepted"),
         ),
     ),
     _Row(
@@ -375,6 +386,10 @@ _ROWS: tuple[_Row, ...] = (
             _f("rx_silence_discards", "u32", "", "partial frames discarded after silence"),
             _f("rx_nacked", "u32", "frames", "commands answered with a Nack"),
             _f("tx_telemetry_dropped", "u32", "frames", "telemetry frames not sent"),
+            _f("queue_free", "u8", "blocks", "program blocks that may be sent now"),
+            _f("stream_free", "u8", "points", "stream points that may be sent now"),
+            _f("stream_state", "u8", "", "`StreamState` code", enum=StreamState),
+            _f("stream_underruns", "u32", "", "stream underruns since boot", wrap=True),
         ),
     ),
     _Row(
@@ -416,6 +431,56 @@ _ROWS: tuple[_Row, ...] = (
             _f("queued", "u8", "blocks", "blocks held, not finished"),
             _f("done", "u32", "blocks", "blocks finished since boot", wrap=True),
             _f("override_pct", "f32", "%", "speed override in force"),
+        ),
+    ),
+    _Row(
+        StreamControl,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("action", "u8", "", "`StreamAction` code", enum=StreamAction),
+            _f("interp", "u8", "", "`Interp` code (START only)", enum=Interp),
+            _f("period_s", "f32", "s", "time between points (START only)"),
+            _f("prefill", "u8", "points", "points held before moving (START only)"),
+        ),
+    ),
+    _Row(
+        StreamPoints,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("first_index", "u32", "", "index of the first point (the next expected)"),
+            _f("count", "u8", "points", "points used, 1..5"),
+            *(
+                _f(f"pos{k}_deg", "i32", "deg", f"position of point first + {k}, 1 LSB = 1e-4 deg",
+                   **_POS)
+                for k in range(5)
+            ),
+            *(
+                _f(f"vel{k}_dps", "f32", "deg/s", f"velocity of point first + {k} (CUBIC only)")
+                for k in range(5)
+            ),
+        ),
+    ),
+    _Row(
+        Jog,
+        (
+            _CMD_ID,
+            _SESSION,
+            _f("vel_dps", "f32", "deg/s", "velocity to reach, signed; 0 = stop"),
+            _f("a_max_dps2", "f32", "deg/s²", "acceleration and deceleration"),
+            _f("timeout_ms", "u16", "ms", "stop after this long without a frame; 0 = never"),
+        ),
+    ),
+    _Row(
+        StreamStatus,
+        (
+            _CMD_ID,
+            _f("state", "u8", "", "`StreamState` code", enum=StreamState),
+            _f("free_slots", "u8", "points", "points that may be sent now"),
+            _f("next_index", "u32", "", "index the next point must carry", wrap=True),
+            _f("underruns", "u32", "", "stream underruns since boot", wrap=True),
+            _f("start_pos_deg", "i32", "deg", "point 0 of the stream, 1 LSB = 1e-4 deg", **_POS),
         ),
     ),
 )

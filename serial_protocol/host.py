@@ -24,6 +24,7 @@ from serial_protocol.messages import (
     COMMAND_TYPES,
     PROTOCOL_VERSION,
     PROTOCOL_VERSION_MIN,
+    STREAM_POINTS_PER_FRAME,
     Ack,
     BoardHeartbeat,
     ClearFault,
@@ -37,6 +38,8 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
+    Jog,
     Limits,
     Loop,
     Malformed,
@@ -56,6 +59,11 @@ from serial_protocol.messages import (
     SetTelemetry,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 from serial_protocol.transport import Link
@@ -67,7 +75,7 @@ ACK_TIMEOUT_S = 0.1
 #: Retries after the first attempt, each with the same cmd_id.
 RETRIES = 3
 
-_REPLIES = (Ack, Nack, Gains, Limits, Status, FaultInfo, QueueStatus)
+_REPLIES = (Ack, Nack, Gains, Limits, Status, FaultInfo, QueueStatus, StreamStatus)
 _COMMANDS = frozenset(COMMAND_TYPES)
 # What a NackCode says about the refused field or command, for nack_text.
 _NACK_WORDS = {
@@ -84,7 +92,8 @@ _NACK_WORDS = {
     NackCode.UNSUPPORTED_VERSION: "the board speaks another protocol version",
     NackCode.BUSY: "refused while the board is busy",
     NackCode.TRAVEL: "the trajectory would leave the travel",
-    NackCode.QUEUE_FULL: "the program queue is full (wait for free slots)",
+    NackCode.QUEUE_FULL: "the program or point queue is full (wait for free slots)",
+    NackCode.NO_STREAM: "no stream is open to take points (START one; it may have run dry)",
 }
 
 
@@ -390,6 +399,90 @@ class BoardClient:
             free = last.free_slots
             end_wall_s = time.monotonic() + timeout_s
         return last
+
+    # ------------------------------------------------------------------ streams and jog
+
+    def stream_control(
+        self,
+        action: StreamAction,
+        *,
+        interp: Interp = Interp.LINEAR,
+        period_s: float = 0.0,
+        prefill: int = 1,
+    ) -> StreamStatus | Nack:
+        """Start, end, abort or read the point stream (docs/protocol.md section 4.6)."""
+        msg = StreamControl(self.next_cmd_id(), action, interp, period_s, prefill)
+        return self.command(msg)  # type: ignore[return-value]
+
+    def stream_status(self) -> StreamStatus | Nack:
+        return self.stream_control(StreamAction.STATUS)
+
+    def stream_points(
+        self,
+        first_index: int,
+        pos_deg: list[float],
+        vel_dps: list[float] | None = None,
+    ) -> StreamStatus | Nack:
+        """Send 1..``STREAM_POINTS_PER_FRAME`` points, the first being point ``first_index``."""
+        msg = StreamPoints.of(self.next_cmd_id(), first_index, pos_deg, vel_dps)
+        return self.command(msg)  # type: ignore[return-value]
+
+    def stream(
+        self,
+        pos_deg: list[float],
+        period_s: float,
+        *,
+        vel_dps: list[float] | None = None,
+        interp: Interp | None = None,
+        prefill: int | None = None,
+        end: bool = True,
+        poll_s: float = 0.02,
+        timeout_s: float = 600.0,
+    ) -> StreamStatus | Nack:
+        """Stream points 1..n (``pos_deg``, and ``vel_dps`` for PVT) every ``period_s`` from
+        where the axis rests: START (CUBIC if velocities are given), the points
+        (``STREAM_POINTS_PER_FRAME`` to a frame) as the board's free slots allow (polling
+        every ``poll_s``, receiving telemetry in between), then END. Returns the last ``StreamStatus`` or the first ``Nack`` (the
+        rest is not sent; an underrun shows as ``StreamState.UNDERRUN``). ``prefill``:
+        points the board holds before it moves (default: as many as fit, at most 16)."""
+        if interp is None:
+            interp = Interp.CUBIC if vel_dps is not None else Interp.LINEAR
+        if vel_dps is not None and len(vel_dps) != len(pos_deg):
+            raise ValueError(f"{len(vel_dps)} velocities for {len(pos_deg)} positions")
+        if prefill is None:
+            prefill = max(1, min(16, len(pos_deg)))
+        last = self.stream_control(StreamAction.START, interp=interp, period_s=period_s,
+                                   prefill=prefill)  # fmt: skip
+        if isinstance(last, Nack):
+            return last
+        free = last.free_slots
+        end_wall_s = time.monotonic() + timeout_s
+        k = 0
+        while k < len(pos_deg):
+            while free == 0:
+                if time.monotonic() > end_wall_s:
+                    raise LinkTimeout(f"the point buffer stayed full for {timeout_s:g} s")
+                self.collect(poll_s)
+                last = self.stream_status()
+                if isinstance(last, Nack) or last.state is not StreamState.RUNNING:
+                    return last
+                free = last.free_slots
+            n = min(STREAM_POINTS_PER_FRAME, free, len(pos_deg) - k)
+            vel = list(vel_dps[k : k + n]) if vel_dps is not None else None
+            last = self.stream_points(k + 1, list(pos_deg[k : k + n]), vel)
+            if isinstance(last, Nack):
+                return last
+            free = last.free_slots
+            k += n
+            end_wall_s = time.monotonic() + timeout_s
+        if end:
+            last = self.stream_control(StreamAction.END)
+        return last
+
+    def jog(self, vel_dps: float, a_max_dps2: float, timeout_ms: int = 0) -> Ack | Nack:
+        """Move at ``vel_dps`` (signed; 0 stops) reached at ``a_max_dps2``, until the next
+        jog, a Stop, the travel end or ``timeout_ms`` without a frame (0: no timeout)."""
+        return self.command(Jog(self.next_cmd_id(), vel_dps, a_max_dps2, timeout_ms))  # type: ignore[return-value]
 
     def wait_status(
         self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05

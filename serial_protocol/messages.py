@@ -56,6 +56,14 @@ __all__ = [
     "QueueState",
     "QueueStatus",
     "PROTOCOL_VERSION",
+    "STREAM_POINTS_PER_FRAME",
+    "Interp",
+    "Jog",
+    "StreamAction",
+    "StreamControl",
+    "StreamPoints",
+    "StreamState",
+    "StreamStatus",
     "PROTOCOL_VERSION_MIN",
     "SetEnable",
     "SetGains",
@@ -93,6 +101,9 @@ class MsgType(IntEnum):
     GET_FAULT = 0x0D
     QUEUE_SEGMENT = 0x0E
     QUEUE_CONTROL = 0x0F
+    STREAM_CONTROL = 0x10
+    STREAM_POINTS = 0x11
+    JOG = 0x12
     HELLO_REPLY = 0x81
     TELEMETRY = 0x82
     ACK = 0x83
@@ -104,6 +115,7 @@ class MsgType(IntEnum):
     BOARD_HEARTBEAT = 0x89
     FAULT_INFO = 0x8A
     QUEUE_STATUS = 0x8B
+    STREAM_STATUS = 0x8C
 
 
 class Profile(IntEnum):
@@ -141,7 +153,8 @@ class NackCode(IntEnum):
     TOO_LOW = 13  # field < limit
     BUSY = 14  # not now: e.g. a Move changing the profile kind while moving
     TRAVEL = 15  # the trajectory asked for would leave the travel (limit = the end crossed)
-    QUEUE_FULL = 16  # the program queue has no free slot (limit = its capacity)
+    QUEUE_FULL = 16  # the program or point queue has no free slot (limit = its capacity)
+    NO_STREAM = 17  # points with no stream open to take them (StreamStatus.state says why)
 
 
 class QueueAction(IntEnum):
@@ -161,6 +174,35 @@ class QueueState(IntEnum):
     RUNNING = 1  # executing (or at rest at the end of what it holds, waiting for more)
     HELD = 2  # feed hold: stopping or stopped, blocks kept
 
+
+class StreamAction(IntEnum):
+    """What a ``StreamControl`` does to the board's point stream."""
+
+    STATUS = 0  # nothing: answer the stream's state
+    START = 1  # open a stream (period_s, interp, prefill) from where the axis rests
+    END = 2  # no more points: after the last one, decelerate to rest (not an underrun)
+    ABORT = 3  # stop now (the board's Stop) and close the stream
+
+
+class Interp(IntEnum):
+    """How the board interpolates between streamed points (docs/protocol.md 4.6)."""
+
+    LINEAR = 0  # constant velocity between points (the points' velocities are ignored)
+    CUBIC = 1  # PVT: the cubic through both points' positions and velocities
+
+
+class StreamState(IntEnum):
+    """State of the point stream (``StreamStatus.state``)."""
+
+    IDLE = 0  # no stream open
+    FILLING = 1  # started, holding still until ``prefill`` points are held
+    RUNNING = 2  # following the points, one every period
+    ENDED = 3  # END received: following the rest, then decelerating to rest
+    UNDERRUN = 4  # the points ran out before END: decelerating to rest, stream closed
+
+
+#: Points one ``StreamPoints`` frame carries at most.
+STREAM_POINTS_PER_FRAME = 5
 
 #: ``Nack.field`` when no single field is at fault (the whole command was refused).
 NO_FIELD = 0xFF
@@ -414,6 +456,86 @@ class QueueControl:
     session: int = 0
 
 
+@dataclass(frozen=True, slots=True)
+class StreamControl:
+    """Start, end, abort or read the point stream (``StreamAction``). START takes the
+    period ``period_s`` between points, the interpolation ``interp`` and ``prefill``, the
+    points the board waits for before it starts moving. Answered by ``StreamStatus``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.STREAM_CONTROL
+    cmd_id: int
+    action: StreamAction
+    interp: Interp = Interp.LINEAR
+    period_s: float = 0.0
+    prefill: int = 1
+    session: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class StreamPoints:
+    """Up to ``STREAM_POINTS_PER_FRAME`` consecutive points of the stream, the first being
+    point ``first_index`` (point k is due k periods after the stream started moving; point
+    0 is where the axis rested at START). ``count`` slots are used; ``vel*_dps`` only with
+    ``Interp.CUBIC``. Build one with :meth:`of`. Answered by ``StreamStatus``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.STREAM_POINTS
+    cmd_id: int
+    first_index: int
+    count: int
+    pos0_deg: float = 0.0
+    pos1_deg: float = 0.0
+    pos2_deg: float = 0.0
+    pos3_deg: float = 0.0
+    pos4_deg: float = 0.0
+    vel0_dps: float = 0.0
+    vel1_dps: float = 0.0
+    vel2_dps: float = 0.0
+    vel3_dps: float = 0.0
+    vel4_dps: float = 0.0
+    session: int = 0
+
+    @classmethod
+    def of(
+        cls,
+        cmd_id: int,
+        first_index: int,
+        pos_deg: list[float] | tuple[float, ...],
+        vel_dps: list[float] | tuple[float, ...] | None = None,
+    ) -> StreamPoints:
+        """The frame of 1..``STREAM_POINTS_PER_FRAME`` points (velocities default to 0)."""
+        n = len(pos_deg)
+        if not 1 <= n <= STREAM_POINTS_PER_FRAME:
+            raise ValueError(f"{n} points: a frame carries 1..{STREAM_POINTS_PER_FRAME}")
+        vel = list(vel_dps) if vel_dps is not None else [0.0] * n
+        if len(vel) != n:
+            raise ValueError(f"{len(vel)} velocities for {n} positions")
+        pad = [0.0] * (STREAM_POINTS_PER_FRAME - n)
+        return cls(cmd_id, first_index, n, *map(float, pos_deg), *pad, *map(float, vel), *pad)
+
+    @property
+    def points(self) -> tuple[tuple[float, float], ...]:
+        """The ``count`` points used, as ``(pos_deg, vel_dps)``."""
+        pos = (self.pos0_deg, self.pos1_deg, self.pos2_deg, self.pos3_deg, self.pos4_deg)
+        vel = (self.vel0_dps, self.vel1_dps, self.vel2_dps, self.vel3_dps, self.vel4_dps)
+        n = max(0, min(self.count, STREAM_POINTS_PER_FRAME))
+        return tuple(zip(pos[:n], vel[:n], strict=True))
+
+
+@dataclass(frozen=True, slots=True)
+class Jog:
+    """Move at ``vel_dps`` (signed; 0 = stop), reaching it at ``a_max_dps2``, until the
+    next Jog, a Stop, the travel end (the board plans its stop at the end) or ``timeout_ms``
+    without a frame of the session (0 = no timeout): then it decelerates to rest at
+    ``a_max_dps2``. Answered by ``Ack``."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.JOG
+    cmd_id: int
+    vel_dps: float
+    a_max_dps2: float
+    timeout_ms: int = 0
+    session: int = 0
+
+
 # ---------------------------------------------------------------- board -> PC
 
 
@@ -441,6 +563,11 @@ class HelloReply:
     watchdog_ms: int
     rx_silence_ms: int
     baud: int
+    # Appended (extension rule): what programs and streams may use.
+    queue_blocks: int = 0
+    stream_points: int = 0
+    stream_period_min_ms: int = 0
+    stream_period_max_ms: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -608,6 +735,11 @@ class BoardHeartbeat:
     rx_silence_discards: int
     rx_nacked: int
     tx_telemetry_dropped: int
+    # Appended (extension rule): flow control of the program queue and the point stream.
+    queue_free: int = 0
+    stream_free: int = 0
+    stream_state: StreamState = StreamState.IDLE
+    stream_underruns: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -637,6 +769,21 @@ class QueueStatus:
     queued: int
     done: int
     override_pct: float
+
+
+@dataclass(frozen=True, slots=True)
+class StreamStatus:
+    """Answer to ``StreamControl`` and ``StreamPoints``: the stream's state, its flow
+    control (``free_slots`` more points may be sent now; ``next_index`` is the index the
+    next point must carry), the underruns since boot and point 0 (where the stream began)."""
+
+    MSG_TYPE: ClassVar[int] = MsgType.STREAM_STATUS
+    cmd_id: int
+    state: StreamState
+    free_slots: int
+    next_index: int
+    underruns: int
+    start_pos_deg: float
 
 
 # ---------------------------------------------------------------- decoder output
@@ -687,6 +834,10 @@ Message = (
     | QueueSegment
     | QueueControl
     | QueueStatus
+    | StreamControl
+    | StreamPoints
+    | Jog
+    | StreamStatus
 )
 
 #: Message classes the PC sends to the board.
@@ -706,4 +857,7 @@ COMMAND_TYPES: tuple[type, ...] = (
     GetFault,
     QueueSegment,
     QueueControl,
+    StreamControl,
+    StreamPoints,
+    Jog,
 )

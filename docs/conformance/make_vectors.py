@@ -14,6 +14,7 @@ back from the board.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import struct
@@ -37,6 +38,8 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
+    Jog,
     Limits,
     Loop,
     Move,
@@ -56,6 +59,11 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 
@@ -111,8 +119,44 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("queue_segment", QueueSegment(15, 1500.0, 300.0, 0.5, session=S), 15),
     ("queue_control", QueueControl(16, QueueAction.OVERRIDE, 80.0, session=S), 16),
     (
+        "stream_control",
+        StreamControl(17, StreamAction.START, Interp.CUBIC, 0.125, 4, session=S),
+        17,
+    ),
+    (
+        "stream_points",
+        dataclasses.replace(
+            StreamPoints.of(18, 1, [0.9375, 3.75, 8.4375, 15.0], [12.5, 25.0, 37.5, 50.0]),
+            session=S,
+        ),
+        18,
+    ),
+    ("jog", Jog(19, -25.0, 500.0, 250, session=S), 19),
+    (
         "hello_reply",
-        HelloReply(1, S, 2, 0, 1, 0, 500, 16384, 0xFFFE, 64, 256, 32, 1, 200, 500, 20, 460800),
+        HelloReply(
+            1,
+            S,
+            2,
+            0,
+            1,
+            0,
+            500,
+            16384,
+            0x7FFFE,
+            64,
+            256,
+            32,
+            1,
+            200,
+            500,
+            20,
+            460800,
+            32,
+            64,
+            2,
+            1000,
+        ),
         0,
     ),  # fmt: skip
     (
@@ -145,9 +189,16 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("gains", Gains(9, Loop.CURRENT, 0.25, 180.0, 0.0), 13),
     ("limits", Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5), 14),
     ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
-    ("board_heartbeat", BoardHeartbeat(100, S, State.IDLE, 0, 5, 1, 2, 30, 1, 0, 1, 2, 0), 16),
+    (
+        "board_heartbeat",
+        BoardHeartbeat(
+            100, S, State.IDLE, 0, 5, 1, 2, 30, 1, 0, 1, 2, 0, 32, 60, StreamState.RUNNING, 1
+        ),
+        16,
+    ),
     ("fault_info", FaultInfo(14, 0, True, 40, 5.18, 4.0), 17),
     ("queue_status", QueueStatus(16, QueueState.RUNNING, 30, 2, 5, 80.0), 18),
+    ("stream_status", StreamStatus(18, StreamState.RUNNING, 60, 5, 0, 12.5), 19),
 ]
 
 
@@ -248,7 +299,7 @@ def exchanges() -> list[dict[str, Any]]:
         return {"send": _cmd(send, seq), "wait_ms": wait_ms, "expect": list(expect)}
 
     hello = step(Hello(1, 2, 2, session=S), _expect("HelloReply", cmd_id=1, session=S,
-                 protocol_version=2, command_mask=0xFFFE, max_payload_bytes=64,
+                 protocol_version=2, command_mask=0x7FFFE, max_payload_bytes=64,
                  rx_silence_ms=20, telemetry_min_decimation=1), seq=0)  # fmt: skip
     head = bytes((frame.MAX_PAYLOAD_BYTES, 0x03, 0))
     fake = frame.SYNC + head + bytes((frame.crc8(head),))

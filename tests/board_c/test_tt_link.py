@@ -205,7 +205,8 @@ def _c(harness: Harness, ops: list[tuple[str, bytes]]) -> tuple[list, tuple, lis
 def test_any_stream_gives_the_python_decoder_s_frames_and_counters(harness, ops):
     py_msgs, py_counters = _python(ops)
     c_msgs, c_counters, _ = _c(harness, ops)
-    assert c_msgs == py_msgs
+    # compared as text: a NaN field (a Stop's a_max_dps2 from random bytes) is never == itself
+    assert repr(c_msgs) == repr(py_msgs)
     assert c_counters == py_counters
 
 

@@ -137,7 +137,8 @@ def test_hello_negotiates_the_version_and_states_the_capabilities(make_bench):
     (reply,) = answers(b, HelloReply)
     assert (reply.cmd_id, reply.session, reply.protocol_version) == (4, 6, 2)
     # Every command type is announced, and nothing else.
-    assert reply.command_mask == sum(1 << t for t in range(1, 16)) == 0xFFFE
+    assert reply.command_mask == sum(1 << t for t in range(1, 19)) == 0x7FFFE
+    assert (reply.queue_blocks, reply.stream_points) == (32, 64)
     assert reply.telemetry_min_decimation == 3  # 40-byte frames at 115200 baud
     assert (reply.max_payload_bytes, reply.rx_buffer_bytes) == (64, 256)
     assert (reply.heartbeat_ms, reply.watchdog_ms, reply.rx_silence_ms) == (200, 0, 20)

@@ -43,6 +43,7 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
     Limits,
     Malformed,
     Move,
@@ -58,6 +59,10 @@ from serial_protocol.messages import (
     SetLimits,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamStatus,
 )
 from sim.config import load_bench
 from sim.loop import Simulation
@@ -85,8 +90,12 @@ _ANSWER = {
     GetFault: (FaultInfo, Nack),
     QueueSegment: (QueueStatus, Nack),
     QueueControl: (QueueStatus, Nack),
+    StreamControl: (StreamStatus, Nack),
+    StreamPoints: (StreamStatus, Nack),
 }
-_REPLY_TYPES = (Ack, Nack, Status, Gains, Limits, HelloReply, FaultInfo, QueueStatus)
+_REPLY_TYPES = (
+    Ack, Nack, Status, Gains, Limits, HelloReply, FaultInfo, QueueStatus, StreamStatus,
+)  # fmt: skip
 #: The session the fuzzing PC opens; a few frames carry another one (or none).
 SESSION = 0x5EED
 _BOARD_TO_PC = tuple(t for t in MsgType if t >= 0x80)
@@ -124,15 +133,20 @@ def _random_message(rng: np.random.Generator, cmd_id: int, scales: dict[str, flo
             kwargs[name] = int(rng.choice([2, 2, 2, 2, 0, 1, 3, 255]))
         elif name == "bit":
             kwargs[name] = int(rng.integers(0, 40))
-        elif name == "target_deg":
+        elif name in ("first_index", "count", "prefill"):
+            kwargs[name] = int(rng.choice([0, 1, 1, 2, 6, 7, 64, 65, 255]))
+        elif name == "timeout_ms":
+            kwargs[name] = int(rng.choice([0, 0, 1, 10, 200, 60000, 65535]))
+        elif name == "interp":
+            kwargs[name] = list(Interp)[rng.integers(len(Interp))]
+        elif name == "target_deg" or (name.startswith("pos") and name.endswith("_deg")):
             if rng.random() < 0.3:
                 kwargs[name] = _TARGET_SPECIAL[rng.integers(len(_TARGET_SPECIAL))]
             else:
                 kwargs[name] = round(float(rng.uniform(-1.3, 1.3) * scales["travel"]), 4)
         elif name in ("profile", "loop", "action"):
-            enum: type[IntEnum] = {"profile": Profile, "action": QueueAction}.get(
-                name, _loop_enum()
-            )
+            action = StreamAction if cls is StreamControl else QueueAction
+            enum: type[IntEnum] = {"profile": Profile, "action": action}.get(name, _loop_enum())
             kwargs[name] = list(enum)[rng.integers(len(enum))]
         elif name == "enable":
             kwargs[name] = bool(rng.random() < 0.7)
@@ -178,7 +192,8 @@ def _snapshot(fw: Any) -> str:
         fw._kind, fw._target_deg, fw._moving, fw._moved, fw._j_max, fw._move_limits,
         fw._v_clamp_dps, fw._decimation, fw._enabled.tolist(), fw._fault.tolist(), gains,
         planners, fw.sp_pos_deg, id(fw.program), fw.program.held, fw.program.override_pct,
-        len(fw.program._pending), len(fw.program._committed),
+        len(fw.program._pending), len(fw.program._committed), fw.stream.state,
+        fw.stream.next_index, fw.stream.t0_s, fw._jog_timeout_ticks,
     )  # fmt: skip
     return repr(parts)
 

@@ -29,6 +29,8 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
+    Jog,
     Limits,
     Loop,
     Malformed,
@@ -49,6 +51,11 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 
@@ -79,6 +86,10 @@ ONE_OF_EACH = [
     QueueSegment(22, 135.0, 30.0, 0.5, session=7),
     QueueControl(23, QueueAction.OVERRIDE, 150.0, session=7),
     QueueStatus(24, QueueState.HELD, 30, 2, 12345, 150.0),
+    StreamControl(25, StreamAction.START, Interp.CUBIC, 0.125, 4, session=7),
+    StreamPoints.of(26, 1, [0.9375, 3.75, 8.4375], [12.5, 25.0, 37.5]),
+    Jog(27, -25.0, 500.0, 250, session=7),
+    StreamStatus(28, StreamState.RUNNING, 60, 5, 0, 12.5),
 ]
 
 

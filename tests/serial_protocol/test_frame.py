@@ -44,6 +44,8 @@ from serial_protocol.messages import (
     Heartbeat,
     Hello,
     HelloReply,
+    Interp,
+    Jog,
     Limits,
     Loop,
     Malformed,
@@ -64,6 +66,11 @@ from serial_protocol.messages import (
     State,
     Status,
     Stop,
+    StreamAction,
+    StreamControl,
+    StreamPoints,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 
@@ -157,6 +164,10 @@ BY_CLASS = {
         u32,
         u32,
         u32,
+        u8,
+        u8,
+        st.sampled_from(StreamState),
+        u32,
     ),
     FaultInfo: st.builds(FaultInfo, u16, u8, st.booleans(), u32, f32, f32),
     QueueSegment: st.builds(QueueSegment, u16, pos, f32, f32, u16),
@@ -164,6 +175,12 @@ BY_CLASS = {
     QueueStatus: st.builds(
         QueueStatus, u16, st.sampled_from(QueueState), u8, u8, u32, f32
     ),
+    StreamControl: st.builds(
+        StreamControl, u16, st.sampled_from(StreamAction), st.sampled_from(Interp), f32, u8, u16
+    ),
+    StreamPoints: st.builds(StreamPoints, u16, u32, u8, *([pos] * 5), *([f32] * 5), u16),
+    Jog: st.builds(Jog, u16, f32, f32, u16, u16),
+    StreamStatus: st.builds(StreamStatus, u16, st.sampled_from(StreamState), u8, u32, u32, pos),
 }
 MESSAGES = st.one_of(*BY_CLASS.values())
 
