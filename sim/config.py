@@ -16,7 +16,7 @@ import dataclasses
 import math
 import tomllib
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -95,7 +95,30 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
     "set_telemetry": {"decimation": (True, "int")},
     # Bytes sent as they are (hex string): for protocol fault-injection experiments.
     "raw": {"hex": (True, "hex")},
+    # Programs, streams and jog (docs/protocol.md 4.5-4.7).
+    "queue_segment": {
+        "target_deg": (True, "float"),
+        "v_max_dps": (True, "float"),
+        "dwell_s": (False, "float"),
+    },
+    "queue_control": {"action": (True, "queue_action"), "override_pct": (False, "float")},
+    "jog": {"vel_dps": (True, "float"), "a_max_dps2": (True, "float"),
+            "timeout_ms": (False, "int")},  # fmt: skip
+    "stream_control": {
+        "action": (True, "stream_action"),
+        "interp": (False, "interp"),
+        "period_s": (False, "float"),
+        "prefill": (False, "int"),
+    },
+    # A program file's blocks, sent one after the other at t_s (at most the queue's size:
+    # a run file has no flow control).
+    "program": {"file": (True, "path")},
+    # A point file streamed from t_s: START, the points five to a frame, each frame sent
+    # STREAM_LEAD_POINTS points ahead of the axis, then END (sim.motionfile).
+    "stream": {"file": (True, "path"), "period_s": (False, "float"), "prefill": (False, "int")},
 }
+#: Points a run file's stream keeps the board ahead of the axis (the board holds 64).
+STREAM_LEAD_POINTS = 48
 
 
 @dataclass(frozen=True)
@@ -159,6 +182,17 @@ class ScriptedCommand:
             return msg.ClearFault(cmd_id)
         if self.type == "set_enable":
             return msg.SetEnable(cmd_id, f["enable"])
+        if self.type == "queue_segment":
+            return msg.QueueSegment(cmd_id, f["target_deg"], f["v_max_dps"], f.get("dwell_s", 0.0))
+        if self.type == "queue_control":
+            return msg.QueueControl(cmd_id, f["action"], f.get("override_pct", 100.0))
+        if self.type == "jog":
+            return msg.Jog(cmd_id, f["vel_dps"], f["a_max_dps2"], f.get("timeout_ms", 0))
+        if self.type == "stream_control":
+            return msg.StreamControl(cmd_id, f["action"], f.get("interp", msg.Interp.LINEAR),
+                                     f.get("period_s", 0.0), f.get("prefill", 1))  # fmt: skip
+        if self.type == "stream_points":  # made by a "stream" entry, not written in files
+            return msg.StreamPoints.of(cmd_id, f["first_index"], f["pos_deg"], f["vel_dps"])
         return msg.SetTelemetry(cmd_id, f["decimation"])
 
 
@@ -497,6 +531,17 @@ def _kind(value: Any, kind: str) -> Any:
         if not isinstance(value, str) or value not in names:
             raise ValueError(f"must be one of {sorted(names)}")
         return names[value]
+    if kind in ("queue_action", "stream_action", "interp"):
+        enum = {"queue_action": msg.QueueAction, "stream_action": msg.StreamAction,
+                "interp": msg.Interp}[kind]  # fmt: skip
+        names = {p.name.lower(): p for p in enum}
+        if not isinstance(value, str) or value not in names:
+            raise ValueError(f"must be one of {sorted(names)}")
+        return names[value]
+    if kind == "path":
+        if not isinstance(value, str) or not value:
+            raise ValueError("must be a file name (relative to this file)")
+        return value
     if kind == "loop":
         names = {p.name.lower(): p for p in msg.Loop}
         if not isinstance(value, str) or value not in names:
@@ -510,6 +555,72 @@ def _kind(value: Any, kind: str) -> Any:
     except ValueError:
         raise ValueError("must be a hex string such as 'a55a00'") from None
     return value
+
+
+def stream_commands(
+    t_s: float,
+    pos_deg: Sequence[float],
+    vel_dps: Sequence[float] | None,
+    period_s: float,
+    interp: msg.Interp,
+    prefill: int,
+) -> list[ScriptedCommand]:
+    """The scripted PC's stream of points 1..n from ``t_s``: START, the points six to a
+    frame, each frame sent when the axis has used the points that make room for it
+    (:data:`STREAM_LEAD_POINTS` ahead), then END with the last frame."""
+    n = len(pos_deg)
+    pos = tuple(float(p) for p in pos_deg)
+    vel = tuple(float(v) for v in vel_dps) if vel_dps is not None else (0.0,) * n
+    out = [ScriptedCommand(t_s, "stream_control", (
+        ("action", msg.StreamAction.START), ("interp", msg.Interp(interp)),
+        ("period_s", float(period_s)), ("prefill", int(prefill))))]  # fmt: skip
+    per = msg.STREAM_POINTS_PER_FRAME
+    t_frame = t_s
+    for first in range(0, n, per):
+        last = min(n, first + per)
+        t_frame = t_s + max(0, last - STREAM_LEAD_POINTS) * period_s
+        out.append(ScriptedCommand(t_frame, "stream_points", (
+            ("first_index", first + 1), ("pos_deg", pos[first:last]),
+            ("vel_dps", vel[first:last]))))  # fmt: skip
+    out.append(ScriptedCommand(t_frame, "stream_control", (("action", msg.StreamAction.END),)))
+    return out
+
+
+def _expand(cmd: ScriptedCommand, where: str, file: Path, duration_s: float
+            ) -> list[ScriptedCommand]:  # fmt: skip
+    """A ``program`` or ``stream`` entry as the commands the scripted PC sends."""
+    from firmware_model.programs import QUEUE_CAPACITY
+    from firmware_model.stream import STREAM_CAPACITY
+    from sim.motionfile import load_points, load_program
+
+    f = dict(cmd.fields)
+    path = (file.parent / f["file"]) if not Path(f["file"]).is_absolute() else Path(f["file"])
+    t_s = cmd.t_s
+    if cmd.type == "program":
+        prog = load_program(path)
+        if len(prog.blocks) > QUEUE_CAPACITY:
+            raise ConfigError(
+                f"{where} file = {f['file']!r}: {len(prog.blocks)} blocks; a run file sends "
+                f"a program at once, so at most the board's {QUEUE_CAPACITY} (monitor "
+                "--program sends any length with flow control)"
+            )
+        return [
+            ScriptedCommand(t_s, "queue_segment",
+                            (("target_deg", t), ("v_max_dps", v), ("dwell_s", d)))
+            for t, v, d in prog.blocks
+        ]  # fmt: skip
+    pts = load_points(path, f.get("period_s"))
+    period = float(pts.period_s or 0.0)
+    n = len(pts.pos_deg)
+    prefill = f.get("prefill", min(n, STREAM_LEAD_POINTS))
+    if not 1 <= prefill <= min(n, STREAM_CAPACITY):
+        raise ConfigError(f"{where} prefill = {prefill!r}: must be in [1, {min(n, 64)}]")
+    out = stream_commands(t_s, pts.pos_deg, pts.vel_dps, period, pts.interp, prefill)
+    t_frame = out[-1].t_s
+    if t_frame >= duration_s:
+        raise ConfigError(f"{where} file = {f['file']!r}: its last points are sent at "
+                          f"{t_frame:g} s, after duration_s = {duration_s:g}")  # fmt: skip
+    return out
 
 
 def _command(entry: Any, index: int, file: Path, duration_s: float) -> ScriptedCommand:
@@ -550,7 +661,7 @@ def _command(entry: Any, index: int, file: Path, duration_s: float) -> ScriptedC
             "one of target_mdeg and target_deg"
         )
     command = ScriptedCommand(float(t_s), ctype, tuple(values))
-    if ctype != "raw":
+    if ctype not in ("raw", "program", "stream"):
         # A value the wire cannot carry is the file's error, not the board's to NACK.
         problem = wire.wire_problem(command.message(1))
         if problem:
@@ -596,8 +707,15 @@ def load_experiment(path: str | Path) -> Experiment:
     entries = data.get("command", [])
     if not isinstance(entries, list):
         raise ConfigError(f"{file}: [top] command = {entries!r}: use [[command]] tables")
-    commands = tuple(_command(e, k, file, float(duration)) for k, e in enumerate(entries))
-    commands = tuple(sorted(commands, key=lambda c: c.t_s))
+    commands_list: list[ScriptedCommand] = []
+    for k, e in enumerate(entries):
+        c = _command(e, k, file, float(duration))
+        if c.type in ("program", "stream"):
+            commands_list += _expand(c, _where(file, f"command #{k + 1}"), file, float(duration))
+        else:
+            commands_list.append(c)
+    # stable: a program's blocks and a stream's frames keep their order
+    commands = tuple(sorted(commands_list, key=lambda c: c.t_s))
     return Experiment(
         bench=bench, duration_s=float(duration), commands=commands, path=file, title=title
     )

@@ -40,8 +40,12 @@ from serial_protocol.messages import (
     Nack,
     NackCode,
     Profile,
+    QueueState,
+    QueueStatus,
     State,
     Status,
+    StreamState,
+    StreamStatus,
     Telemetry,
 )
 
@@ -115,6 +119,29 @@ COMMANDS: dict[str, CommandSpec] = {
     "hello": CommandSpec(
         "hello", "open a new session: the board's protocol, firmware and capabilities"
     ),
+    "jog": CommandSpec(
+        "jog VEL_DPS [A_MAX_DPS2 [TIMEOUT_MS]]",
+        "move at VEL_DPS (signed) until stopped or the travel end",
+        "A_MAX_DPS2 defaults to 148 deg/s^2; TIMEOUT_MS (default 0 = none) stops the jog when "
+        "nothing is sent for that long (the shell's heartbeats count).",
+    ),
+    "program": CommandSpec(
+        "program FILE",
+        "send a motion program file (TOML [[segment]] tables)",
+        "The blocks go into the board's queue with flow control; the board plans junction "
+        "speeds over what it holds (docs/protocol.md 4.5). See sim/motionfile.py.",
+    ),
+    "stream": CommandSpec(
+        "stream FILE [PERIOD_S]",
+        "stream a point file (TOML or CSV) at a fixed period",
+        "PERIOD_S overrides the file's period_s (a CSV file needs it). Points with velocities "
+        "are interpolated as PVT (cubic), else linearly (docs/protocol.md 4.6).",
+    ),
+    "queue": CommandSpec("queue", "the program queue: state, free slots, blocks done"),
+    "hold": CommandSpec("hold", "feed hold: stop the program on its path, keep the blocks"),
+    "resume": CommandSpec("resume", "resume a held program"),
+    "abort": CommandSpec("abort", "stop and empty the program queue"),
+    "override": CommandSpec("override PCT", "speed override of the program, 10..200 %"),
     "help": CommandSpec("help [COMMAND]", "list the commands, or explain one"),
     "quit": CommandSpec("quit", "end the session (also Ctrl-D)"),
 }
@@ -227,6 +254,40 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         if bit != int(bit) or not 0 <= bit <= 31:
             raise CommandError(f"{text!r}: bit = {rest[0]} must be an integer 0..31")
         return ParsedCommand(verb, lambda: client.get_fault(int(bit)), {"bit": int(bit)})
+    if verb == "jog":
+        values = {"a_max_dps2": 148.0, "timeout_ms": 0.0,
+                  **numbers(["vel_dps", "a_max_dps2", "timeout_ms"], 1)}  # fmt: skip
+        timeout = values["timeout_ms"]
+        if timeout != int(timeout) or not 0 <= timeout <= 0xFFFF:
+            raise CommandError(f"{text!r}: timeout_ms = {timeout:g} must be an integer 0..65535")
+        values["timeout_ms"] = int(timeout)
+        _fit(text, m.Jog(0, **values))
+        return ParsedCommand(verb, lambda: client.jog(**values), values)
+    if verb == "override":
+        values = numbers(["override_pct"], 1)
+        _fit(text, m.QueueControl(0, m.QueueAction.OVERRIDE, values["override_pct"]))
+        return ParsedCommand(verb, lambda: client.set_override(values["override_pct"]), values)
+    if verb in ("program", "stream"):
+        from serial_protocol.exceptions import ConfigError
+        from sim.motionfile import load_points, load_program
+
+        if not 1 <= len(rest) <= (2 if verb == "stream" else 1):
+            raise CommandError(f"{text!r}: {spec.usage}")
+        try:
+            if verb == "program":
+                prog = load_program(rest[0])
+                return ParsedCommand(verb, lambda: client.send_program(list(prog.blocks)))
+            period = _number(text, rest[1], "period_s") if len(rest) == 2 else None
+            pts = load_points(rest[0], period)
+        except ConfigError as exc:
+            raise CommandError(f"{text!r}: {exc}") from None
+        vel = list(pts.vel_dps) if pts.vel_dps is not None else None
+        return ParsedCommand(
+            verb,
+            lambda: client.stream(list(pts.pos_deg), pts.period_s, vel_dps=vel,
+                                  interp=pts.interp),  # fmt: skip
+            {"period_s": pts.period_s},
+        )
     if verb == "telemetry":
         value = numbers(["decimation"], 1)["decimation"]
         if value != int(value) or not 0 <= value <= 0xFFFF:
@@ -243,6 +304,10 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         "getlimits": lambda: client.get_limits(),
         "enable": lambda: client.set_enable(True),
         "disable": lambda: client.set_enable(False),
+        "queue": lambda: client.queue_status(),
+        "hold": lambda: client.hold(),
+        "resume": lambda: client.resume(),
+        "abort": lambda: client.abort(),
     }
     return ParsedCommand(verb, simple[verb])
 
@@ -265,7 +330,8 @@ _NACK_WORDS = {
     NackCode.TOO_LOW: "a value is below its limit",
     NackCode.BUSY: "not while moving",
     NackCode.TRAVEL: "the trajectory would leave the travel",
-    NackCode.QUEUE_FULL: "the program queue is full",
+    NackCode.QUEUE_FULL: "the program or point queue is full",
+    NackCode.NO_STREAM: "no stream is open to take points",
 }
 
 
@@ -326,6 +392,16 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
         return (
             f"fault bit {reply.bit}: tripped at tick {reply.tick}, value {reply.value:g}, "
             f"threshold {reply.threshold:g}"
+        )
+    if isinstance(reply, QueueStatus):
+        return (
+            f"program {_name(QueueState, reply.state)}: {reply.queued} block(s) queued, "
+            f"{reply.free_slots} free, {reply.done} done, override {reply.override_pct:g} %"
+        )
+    if isinstance(reply, StreamStatus):
+        return (
+            f"stream {_name(StreamState, reply.state)}: next point {reply.next_index}, "
+            f"{reply.free_slots} free, {reply.underruns} underrun(s) since boot"
         )
     if isinstance(reply, Malformed):
         return f"malformed frame from the board: {reply}"

@@ -100,6 +100,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=5.0,
         help="seconds to listen after the commands (5)",
     )
+    parser.add_argument(
+        "--program",
+        metavar="FILE",
+        help="send a motion program file (TOML [[segment]] tables: target_deg, v_max_dps, "
+        "dwell_s) into the board's queue with flow control (sim/motionfile.py)",
+    )
+    parser.add_argument(
+        "--stream",
+        metavar="FILE",
+        help="stream a point file (TOML with period_s, pos_deg [, vel_dps]; or CSV with a "
+        "pos_deg[,vel_dps] header and --stream-period) at its fixed period",
+    )
+    parser.add_argument(
+        "--stream-period", type=number(lo=0.0, lo_open=True, hi=60.0), metavar="S",
+        help="period between the stream's points (s); overrides the file's",
+    )  # fmt: skip
     parser.add_argument("--csv", metavar="FILE", help="record the telemetry to this CSV")
     parser.add_argument(
         "--capture",
@@ -300,6 +316,17 @@ def _scripted(args: argparse.Namespace) -> list[str]:
         out.append(f"telemetry {args.telemetry}")
     if args.move is not None:
         out.append(_move_text(args, args.move))
+    import shlex
+
+    if args.program:
+        out.append(f"program {shlex.quote(args.program)}")
+    if args.stream:
+        period = f" {args.stream_period!r}" if args.stream_period is not None else ""
+        out.append(f"stream {shlex.quote(args.stream)}{period}")
+    elif args.stream_period is not None:
+        from serial_protocol.exceptions import CommandError
+
+        raise CommandError(f"--stream-period {args.stream_period!r}: only with --stream FILE")
     return out
 
 

@@ -9,7 +9,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sim.reproduce import fig6, fig7, fig8, lookahead_demo, report, scurve_extras, seed002
+from sim.reproduce import (
+    fig6,
+    fig7,
+    fig8,
+    lookahead_demo,
+    programs_demo,
+    report,
+    scurve_extras,
+    seed002,
+)
 from sim.reproduce.experiments import Runner, load, write_telemetry_csv
 
 __all__ = ["FIGURES", "TELEMETRY_DIR", "ReproduceOutput", "reproduce"]
@@ -21,11 +30,14 @@ FIGURES = (
     "fig7_scurve.png",
     "fig8_scurve.png",
     "lookahead.png",
+    "programs.png",
+    "stream.png",
 )
 # The decoded telemetry of the paper's runs, as CSV (the columns of `monitor --csv`).
 TELEMETRY_DIR = "telemetry"
 # fig6 (2) + fig7 (4) + fig8 (1) + seed 002 (1) + S-curve fig7 (4) + fig8 (1) + look-ahead (2)
-_RUNS_ALL = 15
+# + programs and streams (3)
+_RUNS_ALL = 18
 _RUNS_PAPER = 7
 
 
@@ -78,7 +90,7 @@ def reproduce(
     traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
     for stem, trace in traces:
         paths.append(write_telemetry_csv(trace, tel / f"{stem}.csv"))
-    s2 = sc = la = None
+    s2 = sc = la = pg = None
     if extras:
         s2 = seed002.run(runner)
         sc = scurve_extras.run(runner, r7, r8)
@@ -94,7 +106,11 @@ def reproduce(
         fig8.plot(sc.fig8, out / "fig8_scurve.png", limit_a)
         la = lookahead_demo.run(runner)
         lookahead_demo.plot(la, out / "lookahead.png", limit_a)
-        paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png"]
+        pg = programs_demo.run(runner)
+        programs_demo.plot_programs(pg, out / "programs.png", limit_a)
+        programs_demo.plot_stream(pg, out / "stream.png")
+        paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png",
+                  out / "programs.png", out / "stream.png"]  # fmt: skip
     wall_s = time.monotonic() - wall0
     inputs = report.ReportInputs(
         fig6=r6,
@@ -110,6 +126,7 @@ def reproduce(
         quick=quick,
         wall_s=wall_s,
         figures=tuple(p.name for p in paths if p.suffix == ".png"),
+        programs=pg,
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

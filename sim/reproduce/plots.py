@@ -144,6 +144,7 @@ def paper_figure(
     current_limit_a: float | None = None,
     markers: Sequence[Marker] = (),
     points: Sequence[Point] = (),
+    points_label: str = "the paper's value",
     shade: tuple[float, float, str] | None = None,
     time_label: str = "time (s)",
     note: str = "",
@@ -245,7 +246,7 @@ def paper_figure(
     style = [Line2D([], [], color="black", ls="--", lw=0.8, label="planned (board setpoint)")]
     if points:
         style.append(
-            Line2D([], [], color="black", marker="x", ls="", mew=2, label="the paper's value")
+            Line2D([], [], color="black", marker="x", ls="", mew=2, label=points_label)
         )
     run_handles, _ = ax_v.get_legend_handles_labels()
     ax_v.legend(handles=run_handles + style, loc="best", fontsize="small")
