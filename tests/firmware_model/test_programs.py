@@ -233,3 +233,51 @@ def test_the_queue_can_always_stop_and_never_leaves_its_targets(rows):
             assert abs(now[0] - before[0]) < 1e-9 and abs(now[1] - before[1]) < 1e-6
         old = (prof, t0)
         t_s += wait * DT
+
+
+def _distinct_steps(rows):
+    """Keep the blocks that move (a block to where the path already is is a dwell)."""
+    out, p = [], 0.0
+    for target, v_max, dwell in rows:
+        if abs(target - p) > 1e-6:
+            out.append((target, v_max, dwell))
+            p = target
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(-80.0, 80.0).map(lambda x: round(x, 3)),
+            st.floats(2.0, 300.0),
+            st.sampled_from([0.0, 0.0, 0.0, 0.1]),
+        ),
+        min_size=1,
+        max_size=QUEUE_CAPACITY,
+    )
+    .map(_distinct_steps)
+    .filter(bool)
+)
+def test_junction_speeds_equal_the_batch_plan_with_speed_limits_and_dwells(rows):
+    """A whole program appended at once (the queue holds all of it): the board's profile
+    has the batch look-ahead's junction speeds and duration (planner.lookahead with the
+    window holding the whole path: the PC-side plan), block by block."""
+    from planner.lookahead import LookaheadQueue
+
+    q = ProgramQueue(QUEUE_CAPACITY, DT)
+    for target, v_max, dwell in rows:
+        prof = q.append(0.0, 0.0, target, v_max, dwell, v_limit_dps=300.0, a_max_dps2=A)
+    la = LookaheadQueue(0.0, v_max=300.0, a_max=A, period=DT, window=QUEUE_CAPACITY)
+    for target, v_max, dwell in rows:
+        la.append(target, v_max=v_max, stop=dwell > 0.0)
+    segs = la.flush()
+    assert len(segs) == len(rows)
+    t = 0.0
+    for seg, (_, _, dwell) in zip(segs, rows, strict=True):
+        _, v_board, _ = prof.at(t)  # where the block starts: the junction speed
+        assert abs(abs(v_board) - abs(seg.profile.v0)) < 1e-9
+        t += seg.profile.duration
+        t += dwell
+    assert prof.p1 == rows[-1][0] and prof.v1 == 0.0
+    assert math.isclose(prof.duration, t, rel_tol=1e-12, abs_tol=1e-12)

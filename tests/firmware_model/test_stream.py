@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from firmware_model.params import FirmwareParams, LimitsParams
-from firmware_model.stream import STREAM_CAPACITY
+from firmware_model.safety import profile_extent
+from firmware_model.stream import STREAM_CAPACITY, PointStream
 from planner import sample_fixed_period, scurve_from_periods, trapezoid_from_periods
 from serial_protocol.messages import (
     STREAM_POINTS_PER_FRAME,
@@ -305,3 +308,63 @@ def test_a_jog_from_a_running_program_towards_a_far_travel_end(make_bench):
         b.run(k + 3, {5: [QueueSegment(1, 5.0, 50.0, 0.1)], k: [Jog(2, 10.0, 100.0, 50)]})
         assert not b.replies(Nack), k
         assert b.fw._target_deg <= b.fw.params.limits.travel_max_deg
+
+
+# ------------------------------------------------------------------ properties of the stream
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.sampled_from([Interp.LINEAR, Interp.CUBIC]),
+    st.sampled_from([0.002, 0.01, 0.15]),
+    st.lists(
+        # per point: the acceleration over the period as a fraction of a_max (a little
+        # beyond it sometimes), per frame: how late the PC is, as a fraction of the frame
+        st.tuples(
+            st.lists(st.floats(-1.1, 1.1), min_size=1, max_size=PER), st.floats(0.0, 1.3)
+        ),  # fmt: skip
+        min_size=1,
+        max_size=25,
+    ),
+)
+def test_a_stream_can_always_stop_within_the_travel_and_limits(interp, h, frames):
+    """A PC streaming a random smooth trajectory, sometimes beyond the limits or the travel,
+    sometimes too late (underrun): a refused frame takes nothing; every accepted one leaves
+    a profile that ends at rest within the travel, within v_max at the points (and the
+    wire's step), joined to the previous one without a jump in position (nor in velocity,
+    for PVT)."""
+    v_max, a_max, travel = 50.0, 400.0, (-3.0, 3.0)
+    s = PointStream()
+    s.start(0.0, h, interp, 3, v_max_dps=v_max, a_max_dps2=a_max, travel_deg=travel)
+    t_s, old, p, v = 0.0, None, 0.0, 0.0
+    for accels, late in frames:
+        pts, p_try, v_try = [], p, v
+        for acc in accels:
+            v_new = max(-v_max, min(v_max, v_try + acc * a_max * h))
+            p_try = round(p_try + 0.5 * (v_try + v_new) * h, 4)
+            v_try = v_new
+            pts.append((p_try, v_try))
+        pts = tuple(pts)
+        before = s.next_index
+        if s.check(t_s, before, pts) is not None:
+            assert s.next_index == before
+        else:
+            followed = s.add(t_s, pts)
+            p, v = p_try, v_try
+            assert s.next_index == before + len(pts)
+            if followed is not None:
+                prof, t0 = followed
+                assert prof.v1 == 0.0
+                lo, hi = profile_extent(prof)
+                assert travel[0] - 1e-9 <= lo and hi <= travel[1] + 1e-9
+                assert max(abs(x) for x in prof.v) <= v_max + 0.5e-4 / h + 1e-6
+                if old is not None:
+                    p_new, v_new, _ = prof.at(t_s - t0)
+                    p_old, v_old, _ = old[0].at(t_s - old[1])
+                    assert abs(p_new - p_old) < 1e-9
+                    # LINEAR steps its velocity at the points (at most what a_max gives in a
+                    # period); a frame arriving at a point's instant may show that step
+                    dv = 1e-6 if interp is Interp.CUBIC else a_max * h + 1e-4 / h
+                    assert abs(v_new - v_old) <= dv
+                old = (prof, t0)
+        t_s += round(late * len(pts) * h / DT) * DT
