@@ -113,3 +113,58 @@ def test_a_jog_over_the_uart_stops_when_the_client_falls_silent():
     assert sim.fw.sp_vel_dps == 0.0 and sim.fw.fault == 0
     st = c.status()
     assert st.state is State.HOLDING and 15.0 < st.pos_deg < 30.0
+
+
+def test_a_program_a_stream_and_a_jog_through_a_real_serve_tcp():
+    """The same through ``turntable-sim serve --tcp`` (a real socket, the server's own
+    pacing, 4x real time): a program, seed 002's Table 1 streamed (all points held before
+    it moves, so the machine's load cannot make it run dry), a jog stopped by Stop."""
+    import signal
+    import subprocess
+    import sys
+
+    from serial_protocol.messages import QueueStatus
+    from serial_protocol.transport import SerialLink
+
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim.cli", "serve", "--tcp", "0", "--speed", "4"],
+        cwd=root, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        url = proc.stdout.readline().strip()
+        assert url.startswith("socket://"), proc.stderr.read()
+        with SerialLink.open(url) as link:
+            c = BoardClient(link, ack_timeout_s=2.0, retries=5)
+            assert isinstance(c.set_enable(True), Ack)
+            last = c.send_program([(30.0, 200.0, 0.0), (60.0, 50.0, 0.0), (0.0, 200.0, 0.0)])
+            assert isinstance(last, QueueStatus) and last.queued >= 1
+            st = c.wait_status(lambda s: s.state is State.HOLDING, 60.0)
+            assert st is not None and st.target_deg == 0.0 and abs(st.pos_deg) < 0.5
+            s = sample_fixed_period(trapezoid_from_periods(120.0, 50.0, H, n_acc=4), H)
+            c.telemetry.clear()
+            last = c.stream(list(s.p[1:]), H, vel_dps=list(s.v[1:]), prefill=len(s.p) - 1)
+            assert isinstance(last, StreamStatus) and last.state is StreamState.ENDED, last
+            st = c.wait_status(lambda s: s.state is State.HOLDING, 60.0)
+            assert st is not None and abs(st.target_deg - 120.0) < 1e-3
+            assert abs(st.pos_deg - 120.0) < 0.5
+            done = c.stream_status()
+            assert (done.state, done.underruns) == (StreamState.IDLE, 0)
+            # the rows the telemetry holds (a loaded machine may drop some frames)
+            tel = {t.tick: t for t in c.telemetry}
+            moving = sorted(k for k, t in tel.items() if t.state is State.MOVING)
+            t0 = moving[0]  # the stream's t0: its first tick is MOVING, at point 0
+            rows = [(k, tel.get(t0 + ROW_TICKS * k)) for k in range(len(s.p))]
+            seen = [(k, t) for k, t in rows if t is not None]
+            assert len(seen) >= len(rows) // 2
+            for k, t in seen:
+                assert abs(t.sp_pos_deg - s.p[k]) <= 1.5e-4
+            assert isinstance(c.jog(-40.0, 400.0, timeout_ms=500), Ack)
+            c.collect(0.2)
+            assert isinstance(c.stop(), Ack)
+            st = c.wait_status(lambda s: s.state is State.HOLDING, 60.0)
+            assert st is not None and st.pos_deg < 120.0
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.communicate(timeout=30)
+    assert proc.returncode == 0
