@@ -93,8 +93,6 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
     "clear_fault": {},
     "set_enable": {"enable": (True, "bool")},
     "set_telemetry": {"decimation": (True, "int")},
-    # Bytes sent as they are (hex string): for protocol fault-injection experiments.
-    "raw": {"hex": (True, "hex")},
     # Programs, streams and jog (docs/protocol.md 4.5-4.7).
     "queue_segment": {
         "target_deg": (True, "float"),
@@ -116,6 +114,8 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
     # A point file streamed from t_s: START, the points five to a frame, each frame sent
     # STREAM_LEAD_POINTS points ahead of the axis, then END (sim.motionfile).
     "stream": {"file": (True, "path"), "period_s": (False, "float"), "prefill": (False, "int")},
+    # Bytes sent as they are (hex string): for protocol fault-injection experiments.
+    "raw": {"hex": (True, "hex")},
 }
 #: Points a run file's stream keeps the board ahead of the axis (the board holds 64).
 STREAM_LEAD_POINTS = 48
@@ -589,27 +589,42 @@ def stream_commands(
 def _expand(cmd: ScriptedCommand, where: str, file: Path, duration_s: float
             ) -> list[ScriptedCommand]:  # fmt: skip
     """A ``program`` or ``stream`` entry as the commands the scripted PC sends."""
-    from firmware_model.programs import QUEUE_CAPACITY
-    from firmware_model.stream import STREAM_CAPACITY
     from sim.motionfile import load_points, load_program
 
     f = dict(cmd.fields)
     path = (file.parent / f["file"]) if not Path(f["file"]).is_absolute() else Path(f["file"])
     t_s = cmd.t_s
-    if cmd.type == "program":
-        prog = load_program(path)
-        if len(prog.blocks) > QUEUE_CAPACITY:
-            raise ConfigError(
-                f"{where} file = {f['file']!r}: {len(prog.blocks)} blocks; a run file sends "
-                f"a program at once, so at most the board's {QUEUE_CAPACITY} (monitor "
-                "--program sends any length with flow control)"
-            )
-        return [
-            ScriptedCommand(t_s, "queue_segment",
-                            (("target_deg", t), ("v_max_dps", v), ("dwell_s", d)))
-            for t, v, d in prog.blocks
-        ]  # fmt: skip
-    pts = load_points(path, f.get("period_s"))
+    try:
+        if cmd.type == "program":
+            return _program_commands(t_s, load_program(path), where, f["file"])
+        pts = load_points(path, f.get("period_s"))
+    except ConfigError as exc:  # the file's own error, said from the experiment's line
+        raise ConfigError(f"{where} file = {f['file']!r}: {exc}") from None
+    return _stream_entry(t_s, pts, f, where, duration_s)
+
+
+def _program_commands(t_s: float, prog: Any, where: str, name: str) -> list[ScriptedCommand]:
+    """A program file's blocks, all sent at ``t_s`` (the UART paces them)."""
+    from firmware_model.programs import QUEUE_CAPACITY
+
+    if len(prog.blocks) > QUEUE_CAPACITY:
+        raise ConfigError(
+            f"{where} file = {name!r}: {len(prog.blocks)} blocks; a run file sends "
+            f"a program at once, so at most the board's {QUEUE_CAPACITY} (monitor "
+            "--program sends any length with flow control)"
+        )
+    return [
+        ScriptedCommand(t_s, "queue_segment",
+                        (("target_deg", t), ("v_max_dps", v), ("dwell_s", d)))
+        for t, v, d in prog.blocks
+    ]  # fmt: skip
+
+
+def _stream_entry(t_s: float, pts: Any, f: dict[str, Any], where: str, duration_s: float
+                  ) -> list[ScriptedCommand]:  # fmt: skip
+    """A point file's START, frames and END (:func:`stream_commands`), checked."""
+    from firmware_model.stream import STREAM_CAPACITY
+
     period = float(pts.period_s or 0.0)
     n = len(pts.pos_deg)
     prefill = f.get("prefill", min(n, STREAM_LEAD_POINTS))
