@@ -442,15 +442,17 @@ class BoardClient:
         """Stream points 1..n (``pos_deg``, and ``vel_dps`` for PVT) every ``period_s`` from
         where the axis rests: START (CUBIC if velocities are given), the points
         (``STREAM_POINTS_PER_FRAME`` to a frame) as the board's free slots allow (polling
-        every ``poll_s``, receiving telemetry in between), then END. Returns the last ``StreamStatus`` or the first ``Nack`` (the
-        rest is not sent; an underrun shows as ``StreamState.UNDERRUN``). ``prefill``:
-        points the board holds before it moves (default: as many as fit, at most 16)."""
+        every ``poll_s``, receiving telemetry in between), then END. Returns the last
+        ``StreamStatus`` or the first ``Nack`` (the rest is not sent; an underrun shows as
+        ``StreamState.UNDERRUN``). ``prefill``: points the board holds before it moves
+        (default: 0.25 s of points, at most 48)."""
         if interp is None:
             interp = Interp.CUBIC if vel_dps is not None else Interp.LINEAR
         if vel_dps is not None and len(vel_dps) != len(pos_deg):
             raise ValueError(f"{len(vel_dps)} velocities for {len(pos_deg)} positions")
         if prefill is None:
-            prefill = max(1, min(16, len(pos_deg)))
+            # a quarter second of points ahead (what a loaded PC may need), at most 48
+            prefill = max(1, min(48, len(pos_deg), math.ceil(0.25 / period_s - 1e-9)))
         last = self.stream_control(StreamAction.START, interp=interp, period_s=period_s,
                                    prefill=prefill)  # fmt: skip
         if isinstance(last, Nack):
@@ -482,7 +484,8 @@ class BoardClient:
     def jog(self, vel_dps: float, a_max_dps2: float, timeout_ms: int = 0) -> Ack | Nack:
         """Move at ``vel_dps`` (signed; 0 stops) reached at ``a_max_dps2``, until the next
         jog, a Stop, the travel end or ``timeout_ms`` without a frame (0: no timeout)."""
-        return self.command(Jog(self.next_cmd_id(), vel_dps, a_max_dps2, timeout_ms))  # type: ignore[return-value]
+        msg = Jog(self.next_cmd_id(), vel_dps, a_max_dps2, timeout_ms)
+        return self.command(msg)  # type: ignore[return-value]
 
     def wait_status(
         self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05
