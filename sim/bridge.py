@@ -24,7 +24,7 @@ from sim.params import BridgeParams, CurrentSenseParams
 
 __all__ = [
     "adc_counts", "apply_bridge", "pwm_sense_table", "quantise_duty", "read_adc",
-    "sensed_current_a",
+    "sensed_current_a", "switching", "switching_table",
 ]  # fmt: skip
 
 I_A = 0  # the current in a plant state (sim.plant)
@@ -46,6 +46,42 @@ def adc_counts(sensed_a: Any, sense: CurrentSenseParams, noise_lsb: Any = 0.0) -
     full = (1 << sense.adc_bits) - 1
     counts = np.floor(sensed_a / sense.a_per_lsb + 0.5 + noise_lsb)
     return np.clip(counts, 0, full).astype(np.int64)
+
+
+def switching_table(bridge: BridgeParams, n: int) -> Any:
+    """``switching``'s per-member ``(n, 2)`` pulse shifts in duty units (with, against the
+    current), or ``(0, 2)`` for the ideal bridge."""
+    w, a = bridge.pulse_shift_with_current_us, bridge.pulse_shift_against_current_us
+    if np.all(np.asarray(w) == 0) and np.all(np.asarray(a) == 0):
+        return np.zeros((0, 2))
+    table = np.empty((n, 2))
+    table[:, 0] = np.asarray(w) * 1e-6 * bridge.pwm_hz
+    table[:, 1] = np.asarray(a) * 1e-6 * bridge.pwm_hz
+    return table
+
+
+@numba.njit(cache=True)
+def switching(x, supply_v, shifts, d_out, sense_sign, volt):
+    """The bridge's switching times per member, after ``apply_bridge``: the output pulse is
+    ``|duty| / f_pwm + shift`` long, the shift by the current's direction at the start of
+    the period (``x``): with the duty (or zero), the high side's delays set both edges
+    (BTS7960B datasheet 4.2.2: ``(t_dr + t_r / 2) - (t_df + t_f / 2)`` of the high side);
+    against it, the low side's. A pulse shortened to nothing is not switched (duty 0, no
+    high side, the IS pin silent). ``shifts``: ``switching_table`` (empty: nothing to do)."""
+    if shifts.shape[0] == 0:
+        return
+    for j in range(d_out.shape[0]):
+        d = d_out[j]
+        if d == 0.0 or sense_sign[j] == 0.0:
+            continue
+        shift = shifts[j, 0] if x[j, I_A] * d >= 0.0 else shifts[j, 1]
+        m = abs(d) + shift
+        m = 0.0 if m < 0.0 else (1.0 if m > 1.0 else m)
+        d = m if d > 0.0 else -m
+        d_out[j] = d
+        if d == 0.0:
+            sense_sign[j] = 0.0
+        volt[j] = d * supply_v[j]
 
 
 # read_adc's ``pwm[2]`` columns: the IS offset (A of load current), the sample point, the

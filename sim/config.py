@@ -292,6 +292,8 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("bridge", "ov_release_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
     ("bridge", "uv_lockout_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),
     ("bridge", "uv_release_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),
+    ("bridge", "pulse_shift_with_current_us"): (-20.0, 20.0, "a bridge's switching delays"),
+    ("bridge", "pulse_shift_against_current_us"): (-20.0, 20.0, "a bridge's switching delays"),
     ("bridge", "r_on_path_ohm"): (0.0, 10.0, "a bridge path, not a resistor bank"),
     ("bridge", "timer_clock_hz"): (1e6, 72e6, "the STM32F103's timer clock"),
     ("bridge", "pwm_hz"): (100.0, 100e3, "a PWM the BTN7971B can switch"),

@@ -42,7 +42,7 @@ from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Fault, Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
 from sim import tick as st
-from sim.bridge import apply_bridge, pwm_sense_table, read_adc
+from sim.bridge import apply_bridge, pwm_sense_table, read_adc, switching, switching_table
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
@@ -346,6 +346,8 @@ class Simulation:
         # The IS pin within the PWM period (sample point, ripple, offset, settling): empty
         # for the averaged sense (sim.bridge.read_adc).
         self._sense_table = pwm_sense_table(plant.current_sense, plant.bridge, plant.motor.l_h, n)
+        # The bridge's switching times (sim.bridge.switching): empty for the ideal bridge.
+        self._shifts = switching_table(plant.bridge, n)
         signal_row = getattr(firmware, "signal_row", None)
         if signal_row is None:
             pick, signals = itemgetter(*FW_FIELDS), firmware.signals
@@ -562,7 +564,7 @@ class Simulation:
             logs = (
                 np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty,
             )  # fmt: skip
-        bridge_params = (self._arr_n, self._vs_n)
+        bridge_params = (self._arr_n, self._vs_n, self._shifts)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
         bps = float(bytes_per_s(uart_tx.baud))
         x0, x1 = (x, spare)
@@ -730,6 +732,7 @@ class Simulation:
             # (sim.bridge.quantise_duty).
             d, en = np.empty(n), np.empty(n, dtype=bool)
             apply_bridge(duty, enable, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt)
+            switching(x, self._vs_n, self._shifts, d, self._sense_sign, self._volt)
             self._duty, self._enable = d, en
             if self._record_inputs:
                 self._inputs.append((d.copy(), en.copy()))

@@ -142,6 +142,11 @@ class BridgeParams:
     ``ov_lockout_v`` / ``ov_release_v`` and ``uv_lockout_v`` / ``uv_release_v``: the chip's
     over- and under-voltage lock-out with its hysteresis (outputs off above/below the first,
     back on past the second); only the bus model (``[supply] bus_model``) can reach them.
+    ``pulse_shift_with_current_us`` / ``pulse_shift_against_current_us``: how much longer
+    (negative: shorter) the output pulse is than the PWM input pulse, with the current
+    flowing in the duty's direction (the high side's switching delays set the edges) or
+    against it (the low side's); a pulse shortened to nothing is not switched at all
+    (``sim.bridge.switching``). 0 and 0: the ideal bridge.
     """
 
     r_on_path_ohm: float = 0.016
@@ -153,9 +158,19 @@ class BridgeParams:
     ov_release_v: float = 27.8
     uv_lockout_v: float = 4.5
     uv_release_v: float = 5.5
+    pulse_shift_with_current_us: float = 0.0
+    pulse_shift_against_current_us: float = 0.0
 
     def __post_init__(self) -> None:
         _non_negative(self, "r_on_path_ohm", "diode_drop_v")
+        for name in ("pulse_shift_with_current_us", "pulse_shift_against_current_us"):
+            v = getattr(self, name)
+            _check(
+                self,
+                name,
+                _finite(v) and bool(np.all(np.abs(np.asarray(v)) * self.pwm_hz < 1e6)),
+                "must be finite and shorter than the PWM period",
+            )
         _positive(self, "timer_clock_hz", "pwm_hz", "current_limit_a")
         _positive(self, "ov_lockout_v", "ov_release_v", "uv_lockout_v", "uv_release_v")
         _check(

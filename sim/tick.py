@@ -66,7 +66,7 @@ from firmware_model.tick import (
     state_of,
 )
 from serial_protocol import uart
-from sim.bridge import apply_bridge, read_adc
+from sim.bridge import apply_bridge, read_adc, switching
 from sim.encoder import _read
 from sim.supply import read_bus_adc, step_period
 
@@ -115,7 +115,7 @@ def run_ticks(
     latency, offset, enc_noise, counts_per_rad, counts_per_rev, enc_inl = enc_params
     a_per_lsb, adc_noise, sense_table = adc_params
     pwm = (duty, volt, sense_table)
-    arr, supply_v = bridge_params
+    arr, supply_v, shifts = bridge_params
     n = x0.shape[0]
     no_draw = np.empty(0)
     keep = flags[F_KEEP] != 0
@@ -211,6 +211,7 @@ def run_ticks(
                     return STOP_OC
             if stage == BRIDGE:
                 apply_bridge(P[P_DUTY], en_now, arr, supply_v, duty, enable, sense_sign, volt)
+                switching(x, supply_v, shifts, duty, sense_sign, volt)
                 stage = PLANT
                 ctx[CX_MEMBER] = 0
             if stage == PLANT:
