@@ -104,7 +104,7 @@ def to_scurve(exp: Experiment, ramp_s: float, run_up_j_max_dps3: float | None = 
 
 def scale_quick(exp: Experiment, k: float = QUICK_TIME_SCALE) -> Experiment:
     """The same experiment with every time divided by ``k`` (positions / k^2, velocities / k,
-    accelerations kept, jerks x k), see :data:`QUICK_TIME_SCALE`."""
+    accelerations kept, jerks x k, dwells / k), see :data:`QUICK_TIME_SCALE`."""
     commands = []
     for cmd in exp.commands:
         values = dict(cmd.fields)
@@ -115,6 +115,8 @@ def scale_quick(exp: Experiment, k: float = QUICK_TIME_SCALE) -> Experiment:
             values["v_max_dps"] = values["v_max_dps"] / k
         if "j_max_dps3" in values:
             values["j_max_dps3"] = values["j_max_dps3"] * k
+        if "dwell_s" in values:  # a program block's pause
+            values["dwell_s"] = values["dwell_s"] / k
         commands.append(ScriptedCommand(cmd.t_s / k, cmd.type, tuple(values.items())))
     return dataclasses.replace(exp, duration_s=exp.duration_s / k, commands=tuple(commands))
 

@@ -1,15 +1,16 @@
-"""Beyond the paper: a multi-waypoint turntable program through the seed 001 look-ahead
-against stopping at every waypoint.
+"""Beyond the paper: seed 001's multi-waypoint program run by the board's own look-ahead
+queue, against stopping at every waypoint and against the PC-side plan.
 
 ``bench_configs/lookahead_program.toml`` is the program as a PC that stops at every waypoint
-sends it: one move per waypoint, each sent ``DWELL_S`` (rounded up to ``GRID_S``) after the
-previous one has ended by its plan. The look-ahead version is built from the same waypoints:
-``planner.plan_program`` gives the junction speeds; where a junction speed is 0 (a reversal)
-or at the end the turntable must stop. The board's protocol has no "pass through at speed"
-message (a ``Move`` always ends at rest), so the PC sends one ``Move`` per stop point, with
-the same pause after each; the board's trapezoid then passes the same-direction waypoints at
-speed. The report compares the seed 001 plan with what the board executed, junction by
-junction, and gives the time saved, planned and measured.
+sends it: one ``Move`` per waypoint, each sent ``DWELL_S`` (rounded up to ``GRID_S``) after
+the previous one has ended by its plan. The look-ahead version sends the same waypoints at
+once as ``QueueSegment`` blocks (docs/protocol.md 4.5) after a ``SetLimits`` giving the
+program's a_max: the board plans the junction speeds itself with seed 001's look-ahead over
+what it holds, passes same-direction waypoints at speed and comes to rest where the
+direction reverses, each reversal block carrying a ``DWELL_S`` dwell (the same pause after
+each stop as the stop-at-each PC). The PC-side plan is ``planner.plan_program`` over the same
+waypoints (not run). The report compares the junction speeds planned on the PC with the
+board's setpoint and the encoder at each waypoint, and the times.
 """
 
 from __future__ import annotations
@@ -25,10 +26,27 @@ from matplotlib.figure import Figure
 from planner import plan_program, plan_trapezoid
 from sim.config import Experiment, ScriptedCommand
 from sim.reproduce.experiments import Runner, Trace, load, move_commands
-from sim.reproduce.metrics import arrival_t_s
-from sim.reproduce.plots import SHAFT_NOTE, Curve, Marker, paper_figure, position_label, quick_note
+from sim.reproduce.plots import (
+    SHAFT_NOTE,
+    Curve,
+    Marker,
+    Point,
+    paper_figure,
+    position_label,
+    quick_note,
+)
+from sim.reproduce.programs_demo import crossing, rest_t_s
 
-__all__ = ["DWELL_S", "GRID_S", "LookaheadResult", "plot", "run", "schedule"]
+__all__ = [
+    "DWELL_S",
+    "GRID_S",
+    "LookaheadResult",
+    "plot",
+    "queue_experiment",
+    "reversals",
+    "run",
+    "schedule",
+]
 
 DWELL_S = 0.2  # pause after each stop (the PC's rule in lookahead_program.toml)
 GRID_S = 0.01  # the PC sends on a 10 ms grid
@@ -49,40 +67,61 @@ def schedule(stops: list[float], v_max: float, a_max: float, p0: float = 0.0) ->
     return times
 
 
+def reversals(waypoints: list[float] | tuple[float, ...]) -> list[bool]:
+    """For each waypoint after the first: whether the path reverses (or ends) there."""
+    w = waypoints
+    return [k == len(w) - 1 or (w[k] - w[k - 1]) * (w[k + 1] - w[k]) < 0.0
+            for k in range(1, len(w))]  # fmt: skip
+
+
 @dataclass(frozen=True)
 class LookaheadResult:
+    """Speeds in deg/s, times in s, positions in axis degrees; the traces are as run
+    (scaled by ``time_scale`` under ``--quick``), every other figure at full scale."""
+
     waypoints_deg: tuple[float, ...]
-    junction_speeds_dps: tuple[float, ...]
+    junction_speeds_dps: tuple[float, ...]  # PC-side plan (plan_program), every waypoint
     stop_points_deg: tuple[float, ...]
     v_max_dps: float
     a_max_dps2: float
     plan_stop_each_s: float  # sum of the rest-to-rest trapezoids (no pauses)
-    plan_lookahead_s: float  # seed 001's plan_program duration
-    plan_board_lookahead_s: float  # sum of the board's trapezoids between stop points
+    plan_lookahead_s: float  # the PC-side plan's duration (no pauses)
+    board_motion_s: float  # the board's queue run: first setpoint motion to rest, less dwells
     stop_each: Trace
-    lookahead: Trace
-    done_stop_each_s: float | None  # measured: arrival at the last waypoint
-    done_lookahead_s: float | None
-    crossing_speeds_dps: tuple[float, ...]  # measured |v| where the look-ahead run passes
+    queue: Trace
+    done_stop_each_s: float | None  # setpoint at rest at the last waypoint, from the first send
+    done_queue_s: float | None
+    board_speeds_dps: tuple[float, ...]  # the board's setpoint |v| at each inner waypoint
+    crossing_speeds_dps: tuple[float, ...]  # the encoder's |v| there
+    max_err_queue_deg: float  # max |setpoint - encoder| as run (not rescaled under --quick)
+    max_err_stop_each_deg: float
     time_scale: float
     schedule_ok: bool  # the TOML follows the PC's rule
+    nacks: int  # NACKs in both runs (0 for a valid run)
 
 
-def _crossing(trace: Trace, waypoint: float, t_from: float, stop: bool) -> tuple[float, float]:
-    """``(|measured velocity|, t_s)`` at ``waypoint`` after ``t_from``: where the encoder
-    first passes it, or for a stop point (which the axis need not pass) where the setpoint
-    comes to rest on it. ``(NaN, t_from)`` if never."""
-    i0 = trace.index_at(t_from)
-    if stop:
-        at = (np.abs(trace.sp_pos_deg[i0:] - waypoint) <= 1e-6) & (trace.sp_vel_dps[i0:] == 0.0)
-        hits = np.flatnonzero(at)
-    else:
-        pos = trace.pos_deg[i0:] - waypoint
-        hits = np.flatnonzero(np.sign(pos[:-1]) * np.sign(pos[1:]) <= 0)
-    if not hits.size:
-        return math.nan, t_from
-    i = i0 + int(hits[0])
-    return float(abs(trace.vel_dps[i])), float(trace.t_s[min(i + 1, len(trace.t_s) - 1)])
+def queue_experiment(exp: Experiment, waypoints: list[float], v_max: float, a_max: float
+                     ) -> Experiment:  # fmt: skip
+    """The program as ``QueueSegment`` blocks, all sent at 0 after a ``SetLimits`` with the
+    program's a_max (the queue's acceleration) and v_max; a ``DWELL_S`` dwell at every
+    reversal and none at the end."""
+    cmds = [
+        ScriptedCommand(0.0, "set_limits", (
+            ("v_max_dps", v_max), ("a_max_dps2", a_max), ("current_limit_a", 5.0),
+            ("following_error_deg", 30.0))),
+    ]  # fmt: skip
+    for target, stop in zip(waypoints[1:], reversals(waypoints), strict=True):
+        dwell = DWELL_S if stop and target != waypoints[-1] else 0.0
+        cmds.append(ScriptedCommand(0.0, "queue_segment", (
+            ("target_deg", target), ("v_max_dps", v_max), ("dwell_s", dwell))))  # fmt: skip
+    plan = plan_program(waypoints, v_max=v_max, a_max=a_max)
+    n_dwell = sum(reversals(waypoints)) - 1
+    return dataclasses.replace(
+        exp,
+        commands=tuple(cmds),
+        duration_s=plan.duration + n_dwell * DWELL_S + SETTLE_S,
+        title="Waypoint program through the board's look-ahead queue",
+    )
 
 
 def run(runner: Runner) -> LookaheadResult:
@@ -94,45 +133,36 @@ def run(runner: Runner) -> LookaheadResult:
     waypoints = [0.0] + targets
     la = plan_program(waypoints, v_max=v_max, a_max=a_max)
     speeds = tuple(float(v) for v in la.speeds)
-    stops = [w for w, v in zip(waypoints[1:-1], speeds[1:-1], strict=True) if v == 0.0]
-    stops.append(waypoints[-1])
+    stops = [w for w, r in zip(waypoints[1:], reversals(waypoints), strict=True) if r]
     expected = schedule(targets, v_max, a_max)
     schedule_ok = bool(np.allclose(expected, [c.t_s for c in moves], atol=1e-9))
-
-    la_times = schedule(stops, v_max, a_max)
-    template = moves[0]
-    commands = []
-    prev = 0.0
-    end = 0.0
-    plan_board = 0.0
-    for t_s, target in zip(la_times, stops, strict=True):
-        values = dict(template.fields)
-        values["target_deg"] = target
-        commands.append(ScriptedCommand(t_s, "move", tuple(values.items())))
-        duration = plan_trapezoid(prev, target, v_max=v_max, a_max=a_max).duration
-        plan_board += duration
-        end = t_s + duration
-        prev = target
-    la_exp: Experiment = dataclasses.replace(
-        exp,
-        commands=tuple(commands),
-        duration_s=end + SETTLE_S,
-        title="Waypoint program through the look-ahead (stops at reversals only)",
-    )
     plan_stop_each = sum(
         plan_trapezoid(a, b, v_max=v_max, a_max=a_max).duration
         for a, b in zip(waypoints[:-1], waypoints[1:], strict=True)
     )
     k = 4.0 if runner.quick else 1.0
     stop_trace = runner.run("waypoints, stop at each", runner.prepare(exp))
-    la_trace = runner.run("waypoints, look-ahead", runner.prepare(la_exp))
-    done_stop = arrival_t_s(stop_trace)
-    done_la = arrival_t_s(la_trace)
-    crossings = []
+    q_exp = queue_experiment(exp, waypoints, v_max, a_max)
+    q_trace = runner.run("waypoints, board queue", runner.prepare(q_exp))
+    w_run = [w / (k * k) for w in waypoints]
+    board, crossings = [], []
     t_from = 0.0
-    for w, v in zip(waypoints[1:-1], speeds[1:-1], strict=True):
-        speed, t_from = _crossing(la_trace, w / (k * k), t_from, stop=v == 0.0)
-        crossings.append(speed * k)
+    for n in range(1, len(w_run) - 1):
+        direction = 1.0 if w_run[n] > w_run[n - 1] else -1.0
+        v_sp, v_enc, t_from = crossing(q_trace, w_run[n], t_from, direction, a_max)
+        board.append(v_sp * k)
+        crossings.append(v_enc * k)
+    done_stop = rest_t_s(stop_trace, 0.0, w_run[-1])
+    done_q = rest_t_s(q_trace, 0.0, w_run[-1])
+    moving = np.flatnonzero(q_trace.sp_vel_dps != 0.0)
+    board_motion = (
+        math.nan if done_q is None or not moving.size
+        else (done_q - float(q_trace.t_s[moving[0]])) * k - (len(stops) - 1) * DWELL_S
+    )  # fmt: skip
+
+    def max_err(trace: Trace) -> float:  # as run (a tracking error does not scale as k^2)
+        return float(np.max(np.abs(trace.sp_pos_deg - trace.pos_deg)))
+
     return LookaheadResult(
         waypoints_deg=tuple(waypoints),
         junction_speeds_dps=speeds,
@@ -141,31 +171,45 @@ def run(runner: Runner) -> LookaheadResult:
         a_max_dps2=a_max,
         plan_stop_each_s=plan_stop_each,
         plan_lookahead_s=la.duration,
-        plan_board_lookahead_s=plan_board,
+        board_motion_s=board_motion,
         stop_each=stop_trace,
-        lookahead=la_trace,
+        queue=q_trace,
         done_stop_each_s=None if done_stop is None else done_stop * k,
-        done_lookahead_s=None if done_la is None else done_la * k,
+        done_queue_s=None if done_q is None else done_q * k,
+        board_speeds_dps=tuple(board),
         crossing_speeds_dps=tuple(crossings),
+        max_err_queue_deg=max_err(q_trace),
+        max_err_stop_each_deg=max_err(stop_trace),
         time_scale=k,
         schedule_ok=schedule_ok,
+        nacks=len(stop_trace.nacks) + len(q_trace.nacks),
     )
 
 
 def plot(result: LookaheadResult, path: str | Path | None, current_limit_a: float) -> Figure:
-    """Stop at every waypoint against the look-ahead (returns the figure, saved to
-    ``path`` if given; labels give this run's values, scaled under ``--quick``)."""
+    """Stop at every waypoint against the board's look-ahead queue; crosses: the PC-side
+    plan's junction speeds where the queue run crosses each waypoint (returns the figure,
+    saved to ``path`` if given; labels give this run's values, scaled under ``--quick``)."""
     k = result.time_scale
     markers = []
     for name, t in (("stop at each: done", result.done_stop_each_s),
-                    ("look-ahead: done", result.done_lookahead_s)):  # fmt: skip
+                    ("board queue: done", result.done_queue_s)):  # fmt: skip
         if t is not None:
             markers.append(Marker(t / k, name, at_top=False))
-    wp = ", ".join(f"{w / (k * k):g}" for w in result.waypoints_deg)
+    w = [x / (k * k) for x in result.waypoints_deg]
+    points = []
+    t_from = 0.0
+    for n, v in enumerate(result.junction_speeds_dps[1:-1], start=1):
+        direction = 1.0 if w[n] > w[n - 1] else -1.0
+        _, _, t_from = crossing(result.queue, w[n], t_from, direction, result.a_max_dps2)
+        points.append(Point(t_from, direction * v / k, ""))
+    wp = ", ".join(f"{x:g}" for x in w)
     return paper_figure(
         [
-            Curve(result.stop_each, "stop at every waypoint", "tab:gray"),
-            Curve(result.lookahead, "seed 001 look-ahead (stop at reversals only)", "tab:blue"),
+            Curve(result.stop_each, "PC stops at every waypoint (a Move each)", "tab:gray"),
+            Curve(
+                result.queue, "board's queue (QueueSegment; look-ahead on the board)", "tab:blue"
+            ),  # fmt: skip
         ],
         path,
         title=f"Waypoint program {wp} ° ($v_{{max}}$ {result.v_max_dps / k:g} °/s, "
@@ -174,6 +218,8 @@ def plot(result: LookaheadResult, path: str | Path | None, current_limit_a: floa
         current_limit_a=current_limit_a,
         pos_label=position_label(k),
         markers=markers,
-        note=f"Each stop is followed by a {DWELL_S / k:g} s pause (the PC's rule); dotted lines: "
-        "arrival at the last waypoint. " + SHAFT_NOTE,
+        points=points,
+        points_label="PC-side plan's junction speed (plan_program)",
+        note=f"Each stop is followed by a {DWELL_S / k:g} s pause (the PC's rule; a dwell in "
+        "the queue's reversal blocks); dotted lines: at rest at the last waypoint. " + SHAFT_NOTE,
     )

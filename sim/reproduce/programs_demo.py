@@ -40,7 +40,7 @@ from sim.reproduce import seed002
 from sim.reproduce.experiments import Runner, Trace, load
 from sim.reproduce.plots import SHAFT_NOTE, Curve, Marker, Point, paper_figure
 
-__all__ = ["ProgramsResult", "plot_programs", "plot_stream", "run"]
+__all__ = ["ProgramsResult", "crossing", "plot_programs", "plot_stream", "rest_t_s", "run"]
 
 A_MAX_DPS2 = 500.0  # the program's acceleration (SetLimits before it; the queue uses it)
 V_LIMIT_DPS = 990.0
@@ -88,21 +88,21 @@ def pc_plan(blocks: tuple[tuple[float, float, float], ...], p0: float = 0.0) -> 
     return la.flush()
 
 
-def _crossing(trace: Trace, waypoint: float, t_from: float, direction: float
-              ) -> tuple[float, float, float]:  # fmt: skip
+def crossing(trace: Trace, waypoint: float, t_from: float, direction: float,
+             a_max_dps2: float = A_MAX_DPS2) -> tuple[float, float, float]:  # fmt: skip
     """``(|setpoint v|, |encoder v|, t_s)`` where the setpoint first reaches ``waypoint``
-    moving in ``direction`` after ``t_from`` (within what one tick at ``A_MAX_DPS2`` moves
+    moving in ``direction`` after ``t_from`` (within what one tick at ``a_max_dps2`` moves
     near a stop: the setpoint of a reversal comes to rest there between two ticks)."""
     i0 = trace.index_at(t_from)
     d = (trace.sp_pos_deg[i0:] - waypoint) * direction
-    hits = np.flatnonzero(d >= -A_MAX_DPS2 * trace.dt_s**2)
+    hits = np.flatnonzero(d >= -a_max_dps2 * trace.dt_s**2)
     if not hits.size:
         return math.nan, math.nan, t_from
     i = i0 + int(hits[0])
     return abs(float(trace.sp_vel_dps[i])), abs(float(trace.vel_dps[i])), float(trace.t_s[i])
 
 
-def _done_t_s(trace: Trace, t_from: float, target: float) -> float | None:
+def rest_t_s(trace: Trace, t_from: float, target: float) -> float | None:
     """When the setpoint comes to rest at ``target`` for good (after ``t_from``)."""
     i0 = trace.index_at(t_from)
     moving = np.flatnonzero(
@@ -158,11 +158,11 @@ def run(runner: Runner) -> ProgramsResult:
     t_from = T_START_S
     for k in range(1, len(waypoints) - 1):
         direction = 1.0 if waypoints[k] > waypoints[k - 1] else -1.0
-        v_sp, v_enc, t_from = _crossing(q_trace, waypoints[k], t_from, direction)
+        v_sp, v_enc, t_from = crossing(q_trace, waypoints[k], t_from, direction)
         board.append(v_sp)
         measured.append(v_enc)
-    done_q = _done_t_s(q_trace, T_START_S, waypoints[-1])
-    done_s = _done_t_s(s_trace, T_START_S, waypoints[-1])
+    done_q = rest_t_s(q_trace, T_START_S, waypoints[-1])
+    done_s = rest_t_s(s_trace, T_START_S, waypoints[-1])
 
     def max_err(trace: Trace) -> float:
         live = trace.state == int(State.MOVING)
@@ -229,7 +229,7 @@ def plot_programs(result: ProgramsResult, path: str | Path | None, current_limit
     w = result.waypoints_deg
     for k, v in enumerate(result.planned_junction_dps, start=1):
         direction = 1.0 if w[k] > w[k - 1] else -1.0
-        _, _, t_from = _crossing(result.queue, w[k], t_from, direction)
+        _, _, t_from = crossing(result.queue, w[k], t_from, direction)
         points.append(Point(t_from, direction * v, ""))
     return paper_figure(
         [

@@ -392,59 +392,84 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
     saved_plan = res.plan_stop_each_s - res.plan_lookahead_s
     saved = (
         None
-        if res.done_stop_each_s is None or res.done_lookahead_s is None
-        else res.done_stop_each_s - res.done_lookahead_s
+        if res.done_stop_each_s is None or res.done_queue_s is None
+        else res.done_stop_each_s - res.done_queue_s
     )
     pct = None if saved is None else 100.0 * saved / res.done_stop_each_s
     rows = []
-    for w, v_plan, v_meas in zip(
-        res.waypoints_deg[1:-1], res.junction_speeds_dps[1:-1], res.crossing_speeds_dps,
+    w = res.waypoints_deg
+    for n, (v_plan, v_board, v_meas) in enumerate(zip(
+        res.junction_speeds_dps[1:-1], res.board_speeds_dps, res.crossing_speeds_dps,
         strict=True,
-    ):  # fmt: skip
-        rows.append([f"{w:g}", _f(v_plan), _f(v_meas)])
+    ), start=1):  # fmt: skip
+        kind = "reversal" if (w[n] - w[n - 1]) * (w[n + 1] - w[n]) < 0 else "same direction"
+        rows.append([f"{w[n]:g} ({kind})", _f(v_plan, 2), _f(v_board, 2), _f(v_meas, 2)])
+    k = res.time_scale
     return [
-        "### Multi-waypoint program: look-ahead against stopping at every waypoint",
+        "### Seed 001's waypoint program on the board's look-ahead queue",
         "",
-        f"Waypoints {', '.join(f'{w:g}' for w in res.waypoints_deg)} axis degrees, "
+        f"Waypoints {', '.join(f'{x:g}' for x in w)} axis degrees, "
         f"v_max {res.v_max_dps:g} deg/s, a_max {res.a_max_dps2:g} deg/s² "
-        "(`bench_configs/lookahead_program.toml`; figure lookahead.png). The seed 001 "
-        "look-ahead (`planner.plan_program`) passes same-direction waypoints at speed and "
-        f"stops at {', '.join(f'{w:g}' for w in res.stop_points_deg)}. The board's protocol "
-        "program below runs such programs through the board's own queue; here the PC sends "
-        "one `Move` per stop point and the board's trapezoid passes the other waypoints; "
-        f"{lookahead_demo.DWELL_S:g} s pause after every stop in both programs.",
+        "(`bench_configs/lookahead_program.toml`; figure lookahead.png). **Board's queue:** "
+        "the PC sends `SetLimits` (the program's a_max) and the seven waypoints as "
+        "`QueueSegment` blocks at once; the board plans the junction speeds itself with "
+        "seed 001's look-ahead over what it holds, passes same-direction waypoints at speed "
+        f"and stops at {', '.join(f'{x:g}' for x in res.stop_points_deg)} (each reversal "
+        f"block carries a {lookahead_demo.DWELL_S:g} s dwell). **Stop at every waypoint:** "
+        "the file as written, a `Move` per waypoint, each sent "
+        f"{lookahead_demo.DWELL_S:g} s after the previous one has ended by its plan. "
+        "**PC-side plan:** `planner.plan_program` over the same waypoints (not run).",
         "",
         *_table(
-            ["", "stop at every waypoint", "look-ahead", "saved"],
+            ["", "board's queue", "stop at every waypoint", "saved"],
             [
                 [
-                    "planned motion time (no pauses) (s)",
-                    _f(res.plan_stop_each_s, 2),
-                    f"{_f(res.plan_lookahead_s, 2)} (seed 001 plan); "
-                    f"{_f(res.plan_board_lookahead_s, 2)} (board's moves)",
+                    "planned motion time, no pauses (s)",
+                    f"{_f(res.plan_lookahead_s, 3)} (PC-side plan)",
+                    _f(res.plan_stop_each_s, 3),
                     f"{_f(saved_plan, 2)} s",
                 ],
                 [
-                    "measured: within 0.5 deg of the last waypoint at (s)",
+                    "board: setpoint moving, first motion to rest, less the dwells (s)",
+                    _f(res.board_motion_s, 3),
+                    "",
+                    "",
+                ],
+                [
+                    "measured: setpoint at rest at the last waypoint, from the first send (s)",
+                    _f(res.done_queue_s, 2),
                     _f(res.done_stop_each_s, 2),
-                    _f(res.done_lookahead_s, 2),
                     f"{_f(saved, 2)} s ({_f(pct, 0)} %)",
+                ],
+                [
+                    "largest tracking error, setpoint − encoder (deg"
+                    + (", as run" if k != 1.0 else "")
+                    + ")",
+                    _f(res.max_err_queue_deg, 3),
+                    _f(res.max_err_stop_each_deg, 3),
+                    "",
                 ],
             ],
         ),  # fmt: skip
-        "Speed at each intermediate waypoint, the look-ahead's junction speed against the "
-        "measured speed where the encoder passes it (at a stop point: where the setpoint "
-        "comes to rest on it):",
+        "Speed at each intermediate waypoint: the PC-side plan's junction speed, the board's "
+        "setpoint and the encoder's velocity estimate at the first telemetry frame where the "
+        "setpoint reaches the waypoint (at a reversal the setpoint comes to rest there "
+        "between two ticks; the frame taken is within a_max × (2 ms)² of it, so its speed "
+        f"is within √2 × a_max × 2 ms = {math.sqrt(2.0) * res.a_max_dps2 * 0.002:.2g} deg/s"
+        + (f", × {k:g} scaled back from --quick" if k != 1.0 else "")
+        + "):",
         "",
-        *_table(["waypoint (deg)", "junction speed (deg/s)", "measured (deg/s)"], rows),
+        *_table(
+            ["waypoint (deg)", "PC-side plan (deg/s)", "board setpoint (deg/s)", "encoder (deg/s)"],
+            rows,
+        ),  # fmt: skip
         (
-            "The seed 001 plan and the board's moves between stop points take the same time "
-            "here; in one dimension with one v_max they are the same trapezoids."
-            if abs(res.plan_lookahead_s - res.plan_board_lookahead_s) < 1e-6
-            else "The seed 001 plan and the board's moves between stop points differ in "
-            "duration: seed 001's segment cases have no 'accelerate then decelerate' shape "
-            "for a segment that starts at speed, so its plan can be slower than one trapezoid."
-        ),
+            "The board's plan takes the PC-side plan's time (to the telemetry's 2 ms). "
+            if abs(res.board_motion_s - res.plan_lookahead_s) <= 0.004 * k
+            else f"**The board's plan takes {_f(res.board_motion_s - res.plan_lookahead_s, 3)} s "
+            "longer than the PC-side plan.** "
+        )
+        + ("No command was refused." if res.nacks == 0 else f"**{res.nacks} command(s) refused.**"),
         "",
     ]
 
@@ -580,8 +605,8 @@ def _all_traces(inp: ReportInputs) -> list[Trace]:
     traces += [r.trace for r in inp.fig7.runs]
     if inp.scurve is not None:
         traces += [inp.scurve.fig8.trace] + [r.trace for r in inp.scurve.fig7.runs]
-    if inp.lookahead is not None:
-        traces += [inp.lookahead.stop_each, inp.lookahead.lookahead]
+    if inp.lookahead is not None:  # the queue run's refusals are counted in section 7
+        traces.append(inp.lookahead.stop_each)
     if inp.seed002 is not None:
         traces.append(inp.seed002.trace)
     return traces

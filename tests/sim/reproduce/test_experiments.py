@@ -169,3 +169,23 @@ def test_lookahead_schedule_follows_the_toml():
         end = t0 + plan_trapezoid(prev, target, v_max=990.0, a_max=500.0).duration
         assert t1 - end >= lookahead_demo.DWELL_S - 1e-9
         prev = target
+
+
+def test_lookahead_queue_experiment_sends_the_waypoints_as_blocks():
+    """The board's-queue form of the waypoint program: SetLimits with the program's limits,
+    then one QueueSegment per waypoint, a dwell on each reversal but not at the end; under
+    --quick the dwells scale like every other time."""
+    exp = load("lookahead_program")
+    waypoints = [0.0] + [c.get("target_deg") for _, c in move_commands(exp)]
+    assert lookahead_demo.reversals(waypoints) == [False, False, True, False, True, True, True]
+    q = lookahead_demo.queue_experiment(exp, waypoints, 990.0, 500.0)
+    assert [c.type for c in q.commands] == ["set_limits"] + ["queue_segment"] * 7
+    assert q.commands[0].get("a_max_dps2") == 500.0
+    blocks = [(c.get("target_deg"), c.get("v_max_dps"), c.get("dwell_s")) for c in q.commands[1:]]
+    assert [b[0] for b in blocks] == waypoints[1:]
+    assert [b[2] for b in blocks] == [0.0, 0.0, 0.2, 0.0, 0.2, 0.2, 0.0]
+    quick = scale_quick(q)
+    assert [c.get("dwell_s") for c in quick.commands[1:]] == pytest.approx(
+        [0.0, 0.0, 0.05, 0.0, 0.05, 0.05, 0.0]
+    )
+    assert quick.commands[1].get("target_deg") == pytest.approx(1000.0 / 16)

@@ -142,7 +142,7 @@ def test_current_stays_within_the_limit_with_planning(output):
         assert m.peak_current_a <= limit, m.name
         assert m.peak_true_current_a <= limit, m.name
         assert m.faults == (), m.name
-    for trace in (inp.lookahead.stop_each, inp.lookahead.lookahead):
+    for trace in (inp.lookahead.stop_each, inp.lookahead.queue):
         assert np.max(np.abs(trace.current_a)) <= limit
         assert not np.any(trace.fault)
 
@@ -156,14 +156,25 @@ def test_telemetry_reached_the_pc_every_tick(output):
 
 
 def test_lookahead_passes_waypoints_at_speed_and_saves_time(output):
+    """Seed 001's program through the board's queue: the board's own look-ahead gives the
+    PC-side plan's junction speeds and duration, and beats stopping at every waypoint."""
     la = output.inputs.lookahead
-    assert la.schedule_ok
+    k = la.time_scale
+    assert la.schedule_ok and la.nacks == 0
     assert la.plan_lookahead_s < la.plan_stop_each_s
-    assert la.done_lookahead_s < la.done_stop_each_s
-    for v_plan, v_meas in zip(la.junction_speeds_dps[1:-1], la.crossing_speeds_dps, strict=True):
-        if v_plan > 0.0:
+    assert la.done_queue_s < la.done_stop_each_s
+    # the board's motion time: the PC-side plan's, to a telemetry tick at either end
+    assert la.board_motion_s == pytest.approx(la.plan_lookahead_s, abs=2 * 0.002 * k)
+    inner = la.junction_speeds_dps[1:-1]
+    assert any(v > 0.0 for v in inner) and any(v == 0.0 for v in inner)
+    for v_plan, v_board, v_meas in zip(
+        inner, la.board_speeds_dps, la.crossing_speeds_dps, strict=True
+    ):
+        if v_plan > 0.0:  # passed at speed: the board's setpoint is the plan's speed
+            assert v_board == pytest.approx(v_plan, abs=la.a_max_dps2 * 0.002 * k)
             assert v_meas == pytest.approx(v_plan, rel=0.03)
-        else:
+        else:  # a reversal: at rest within one tick of it
+            assert v_board <= la.a_max_dps2 * 0.002 * k * 1.5
             assert v_meas < 0.05 * la.v_max_dps
 
 
@@ -178,7 +189,7 @@ def test_every_move_of_every_run_was_acknowledged(output):
     from sim.reproduce.report import _all_traces
 
     traces = _all_traces(output.inputs)
-    assert len(traces) == 15
+    assert len(traces) == 14  # the queue runs (answered by QueueStatus) are checked apart
     for trace in traces:
         assert trace.nacks == (), trace.name
         assert len(trace.acks) == len(trace.command_t_s), trace.name
