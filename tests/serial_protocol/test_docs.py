@@ -71,3 +71,32 @@ def test_doc_states_check_values_and_sizes():
     assert f"**no byte has\n   arrived for {frame.RX_SILENCE_S * 1000:.0f} ms**" in DOC
     assert f"The largest frame is {frame.MAX_FRAME_BYTES} bytes" in DOC
     assert f"One `Telemetry` frame is {frame.TELEMETRY_FRAME_BYTES} bytes" in DOC
+
+
+def test_can_section_matches_the_codec():
+    """Section 10's identifier ranges and frames per message follow the message table (they
+    went stale when the segment queue's types were added)."""
+    from serial_protocol.can_link import DEFAULT_BASE_ID, frames_of_payload
+
+    types = [codec.msg_type for codec in frame._BY_CLASS.values()]
+    commands = [t for t in types if t < 0x80]
+    answers = [t for t in types if t >= 0x80]
+    ranges = (
+        f"PC → board 0x{DEFAULT_BASE_ID + min(commands):03X}..0x"
+        f"{DEFAULT_BASE_ID + max(commands):03X}, board → PC 0x{DEFAULT_BASE_ID + min(answers):03X}"
+        f"..0x{DEFAULT_BASE_ID + max(answers):03X}"
+    )
+    assert ranges in DOC
+    listed = re.search(r"Frames per message: (.*?)\.\s*A payload", DOC, re.S)
+    assert listed
+    text = " ".join(listed.group(1).split())
+    stated = {name: int(n) for name, n in re.findall(r"`(\w+)` (\d+)", text)}
+    single = re.search(r"\*\*One frame\*\* for a payload.*?\. (.*?)\.\n", DOC, re.S)
+    assert single
+    one_frame = set(re.findall(r"`(\w+)`", single.group(1)))
+    for cls, codec in frame._BY_CLASS.items():
+        n = len(frames_of_payload(codec.msg_type, bytes(codec.payload.size)))
+        if n == 1:
+            assert cls.__name__ in one_frame, cls.__name__
+        else:
+            assert stated.get(cls.__name__) == n, cls.__name__

@@ -296,3 +296,31 @@ def test_client_over_socket_url_against_a_tcp_board():
         assert link.stats().header_errors + link.stats().bytes_dropped > 0
         assert link.stats().frames == 12 and link.stats().resyncs == 6
     board.join(timeout=5)
+
+
+def test_serial_link_over_socket_reads_what_is_there_in_one_poll():
+    """issue #10 §4: ``SerialLink`` over ``socket://`` reads everything waiting with one
+    select and one read (pyserial's own ``read`` took 1-2 bytes per poll, so a client polling
+    once per tick fell behind 500 telemetry frames a second), and sets ``TCP_NODELAY`` on its
+    side (a command goes out at once, not after the peer's delayed ACK)."""
+    import fcntl
+    import termios
+
+    server = socket.create_server(("127.0.0.1", 0))
+    stream = b"".join(encode(telemetry(k), k & 0xFF) for k in range(200))
+    with SerialLink.open(f"socket://127.0.0.1:{server.getsockname()[1]}") as link:
+        conn, _ = server.accept()
+        with conn:
+            sock = link.port._socket
+            assert sock.getsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY)
+            conn.sendall(stream)
+            waiting = bytearray(4)
+            deadline_s = time.monotonic() + 60.0
+            while time.monotonic() < deadline_s:  # until the kernel holds the whole stream
+                fcntl.ioctl(sock.fileno(), termios.FIONREAD, waiting)
+                if int.from_bytes(waiting, "little") >= len(stream):
+                    break
+                time.sleep(0.01)
+            msgs = link.poll(1.0)
+    server.close()
+    assert [m.tick for m in msgs] == list(range(200))

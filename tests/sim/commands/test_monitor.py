@@ -106,6 +106,8 @@ def test_monitor_sends_commands_records_csv_and_reports(tmp_path, capsys):
     rows = list(csv.DictReader(out_csv.open()))
     assert len(rows) > 10
     assert {r["state"] for r in rows} == {"MOVING"}
+    # issue #15 §5: the measured current has one name in every CSV, never a bare current_a
+    assert "current_meas_a" in rows[0] and "current_a" not in rows[0]
     from sim.capture import read_chunks
 
     with open(capture, "rb") as f:
