@@ -86,7 +86,7 @@ def test_can_section_matches_the_codec():
         f"{DEFAULT_BASE_ID + max(commands):03X}, board → PC 0x{DEFAULT_BASE_ID + min(answers):03X}"
         f"..0x{DEFAULT_BASE_ID + max(answers):03X}"
     )
-    assert ranges in DOC
+    assert ranges in DOC, f"docs/protocol.md section 10 should say: {ranges}"
     listed = re.search(r"Frames per message: (.*?)\.\s*A payload", DOC, re.S)
     assert listed
     text = " ".join(listed.group(1).split())
@@ -97,6 +97,6 @@ def test_can_section_matches_the_codec():
     for cls, codec in frame._BY_CLASS.items():
         n = len(frames_of_payload(codec.msg_type, bytes(codec.payload.size)))
         if n == 1:
-            assert cls.__name__ in one_frame, cls.__name__
+            assert cls.__name__ in one_frame, f"section 10: {cls.__name__} is one CAN frame"
         else:
-            assert stated.get(cls.__name__) == n, cls.__name__
+            assert stated.get(cls.__name__) == n, f"section 10: `{cls.__name__}` {n} frames"
