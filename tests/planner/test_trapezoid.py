@@ -1,9 +1,10 @@
 import math
 import random
+import sys
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from planner import plan_stop, plan_trapezoid
@@ -295,6 +296,9 @@ def test_bad_deceleration_limit(name, bad):
     v0_frac=st.floats(-2.0, 2.0),
     v1_frac=st.floats(-1.0, 1.0),
 )
+# Found by a random run: a subnormal distance, which the symmetric plan at 0.5 holds (the
+# 5e-324 is below what a*t^2/2 can resolve) and the asymmetric one reaches in 6.7e-162 s.
+@example(dist=5e-324, v_max=1.0, a_max=1.0, d_max=0.5, v0_frac=0.0, v1_frac=0.0)
 def test_property_asymmetric_valid_and_between_the_symmetric_plans(
     dist, v_max, a_max, d_max, v0_frac, v1_frac
 ):
@@ -309,8 +313,11 @@ def test_property_asymmetric_valid_and_between_the_symmetric_plans(
     check_asymmetric(prof, v_max=v_max, a_max=a_max, d_max=d_max, v_start_max=abs(v0))
     slow = plan_trapezoid(0.0, dist, a_max=min(a_max, d_max), **kw).duration
     fast = plan_trapezoid(0.0, dist, a_max=max(a_max, d_max), **kw).duration
+    # Durations are resolved only where a*t^2/2 is a normal float: below that (a subnormal
+    # distance) a plan may hold or take ~1e-162 s, and neither is wrong.
+    t_res = math.sqrt(4.0 * sys.float_info.min / min(a_max, d_max))
     if abs(v0) <= v_max:
-        assert fast * (1 - 1e-9) <= prof.duration <= slow * (1 + 1e-9)
+        assert fast * (1 - 1e-9) - t_res <= prof.duration <= slow * (1 + 1e-9) + t_res
 
 
 def test_subnormal_limits_are_refused_with_a_value_error_not_a_crash():
