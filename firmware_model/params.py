@@ -224,6 +224,8 @@ class CurrentLoopGains(_Checked):
     A reading at or below ``sense_floor_counts`` while the reference opposes the duty (or
     no duty is applied) is taken as "the high side carries nothing": the loop then uses its
     reference as the current (see docs/model.md, "The current loop").
+    ``sense_offset_counts``: the IS pin's offset as calibrated (the reading with the high
+    side on and no current), subtracted from every reading before anything else.
 
     The bus voltage comes in on a second ADC channel through a divider of
     ``bus_divider_ratio``. ``bus_compensation``: the duty is the voltage over the *measured*
@@ -246,6 +248,7 @@ class CurrentLoopGains(_Checked):
     adc_vref_v: float = _f(3.3, _rng(0.5, 5.5))
     adc_bits: int = _f(12, _irng(8, 16))
     sense_floor_counts: int = _f(2, _irng(0, 100))
+    sense_offset_counts: int = _f(0, _irng(0, 4095))
     bus_divider_ratio: float = _f(11.0, _rng(1.0, 1000.0))
     bus_compensation: bool = _f(False, _boolean)
     regen_bus_current_limit_a: float = _f(0.0, _rng(0.0, 100.0))

@@ -52,6 +52,7 @@ from firmware_model.laws.layout import (
     K_REF_I,
     K_REGEN_A,
     K_SENSE_FLOOR,
+    K_SENSE_OFFSET,
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC_Q,
@@ -225,8 +226,11 @@ def current(adc, enabled, P, C, S, G, K):
     inv_supply = np.int64(K[K_INV_SUPPLY_Q])
     il = qsig(K[K_I_LIMIT_A])
     arr = np.int64(K[K_ARR])
+    offset = np.int64(K[K_SENSE_OFFSET])
     for j in range(adc.shape[0]):
-        a = adc[j]
+        a = adc[j] - offset  # the IS pin's offset, as calibrated
+        if a < 0:
+            a = 0
         applied = C[C_STEPS, j]
         sensed = (a * a_per_adc_q + (1 << 7)) >> (_GB - _SB)
         sign = _sgn(applied)

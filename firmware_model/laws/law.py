@@ -51,6 +51,7 @@ from firmware_model.laws.layout import (
     K_REF_I,
     K_REGEN_A,
     K_SENSE_FLOOR,
+    K_SENSE_OFFSET,
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC,
@@ -154,6 +155,7 @@ class Law:
         k[K_V_PER_BUS_ADC_Q] = int(round(cur.v_per_bus_adc * (1 << fx.GAIN_FRAC_BITS)))
         k[K_REGEN_A] = cur.regen_bus_current_limit_a
         k[K_BUS_HOLD] = math.ceil(cur.bus_hold_v / cur.v_per_bus_adc)
+        k[K_SENSE_OFFSET] = cur.sense_offset_counts
         # Until the board reports a reading: the configured supply (nominal).
         self.bus_adc_nominal = int(round(self.supply_v / cur.v_per_bus_adc))
         self._derive()

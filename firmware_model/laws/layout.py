@@ -45,10 +45,11 @@ N_G = 14
 # K: shared float constants; the two pipeline indices are stored as floats (exact).
 # K_BUS_COMP: 1 = duty from the measured bus voltage; K_V_PER_BUS_ADC(_Q): volts per count
 # of it (float, Q8.24); K_REGEN_A: the regenerative bus-current limit (A, 0 = off);
-# K_BUS_HOLD: the bus reading (counts) from which the current integrator holds.
+# K_BUS_HOLD: the bus reading (counts) from which the current integrator holds;
+# K_SENSE_OFFSET: the IS reading's offset (counts) the firmware subtracts.
 (
     K_DPS_PER_COUNT_TICK, K_A_PER_ADC, K_SENSE_FLOOR, K_U_LIM, K_SUPPLY_V, K_ARR, K_DELAY,
     K_I_LIMIT_A, K_REF_I, K_PIPE_I, K_A_PER_ADC_Q, K_HALF_Q, K_INV_SUPPLY_Q, K_BUS_COMP,
-    K_V_PER_BUS_ADC, K_V_PER_BUS_ADC_Q, K_REGEN_A, K_BUS_HOLD,
-) = range(18)  # fmt: skip
-N_K = 18
+    K_V_PER_BUS_ADC, K_V_PER_BUS_ADC_Q, K_REGEN_A, K_BUS_HOLD, K_SENSE_OFFSET,
+) = range(19)  # fmt: skip
+N_K = 19

@@ -85,3 +85,22 @@ def test_offset_and_sample_point_move_the_regulated_current():
     np.testing.assert_allclose(
         valley.current_a[w] - valley.current_meas_a[w], ripple[w] / 2, atol=0.03
     )
+
+
+@pytest.mark.parametrize("arithmetic", ["float", "fixed"])
+def test_calibrated_offset_restores_the_sense(arithmetic):
+    # 50 uA of offset through 1 kOhm is 62 counts; subtracted by the firmware, the 5 A
+    # clamp is 5 A again and the blind side is found again: Fig. 6 brakes without the trip.
+    arith = {"servo.arithmetic": arithmetic}
+    exp = experiments.with_duration(experiments.load("fig6"), 4.0)
+    offset = {"current_sense.is_offset_ua": 50.0, **arith}
+    raw = loop.run(exp, seed=0, overrides=offset).log
+    fixed = loop.run(
+        exp, seed=0, overrides={**offset, "controller.current.sense_offset_counts": 62}
+    ).log
+    base = loop.run(exp, seed=0, overrides=arith).log
+    w = (base.t_s > 0.05) & (base.t_s < 0.15)
+    assert np.any(raw.fault == 1)  # uncalibrated: the over-current trip while braking
+    assert np.all(fixed.fault == 0)
+    assert fixed.current_a[w].mean() == pytest.approx(5.0, abs=0.02)
+    assert abs(fixed.true_pos_deg.max() - base.true_pos_deg.max()) < 2.0
