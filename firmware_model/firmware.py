@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model import programs, safety, stream
+from firmware_model import as5048, programs, safety, stream
 from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import (
@@ -172,6 +172,9 @@ class Firmware:
         decoder: the ``serial_protocol.frame.Decoder`` fed with the received bytes.
         session: the session opened by the last ``Hello`` (0 = none yet); commands of any
             other session are refused (docs/protocol.md section 5).
+        sensor_mismatch_peak_deg: per member (``(N,)``), the largest value the back-EMF
+            check's integrated excess reached since power-up (its margin against
+            ``[safety] sensor_mismatch_deg``; ``benchmarks/sensor_check.py`` reports it).
     """
 
     def __init__(
@@ -267,6 +270,27 @@ class Firmware:
         # enable outside the travel, to where the axis was; see _enable).
         self._pos_lo_deg = self._pos_hi_deg = 0.0
         self._set_position_window()
+        # The sensor checks: the back-EMF model (per member) and its filter state, and the
+        # AS5048's reported errors (ticks in a row with an error, the last error bits).
+        cur = params.current
+        self._supply_v = float(cur.supply_v)
+        self._r_ohm = np.broadcast_to(np.asarray(cur.resistance_ohm, float), (n,)).copy()
+        self._emf_v_per_dps = np.broadcast_to(
+            np.asarray(cur.back_emf_v_per_dps, float), (n,)
+        ).copy()
+        self._mismatch_deg = np.zeros(n)
+        # Dynamic braking after a trip: servo ticks left per member (see _trip).
+        self._brake_ticks_setting = round(params.safety.brake_s * params.servo.tick_hz)
+        self._brake_ticks = np.zeros(n, dtype=np.int64)
+        self._diag_ticks = np.zeros(n, dtype=np.int64)
+        self._diag_errors = np.zeros(n, dtype=np.int64)
+        # The same arrays as the compiled tick's ``sf`` (firmware_model.tick.SF_*): they are
+        # only ever changed in place.
+        self.sensor_mismatch_peak_deg = np.zeros(n)
+        self._sf = (
+            self._mismatch_deg, self._r_ohm, self._emf_v_per_dps, self._brake_ticks,
+            self._diag_ticks, self._diag_errors, self.sensor_mismatch_peak_deg,
+        )  # fmt: skip
         # Rare events count here; the per-tick TX counters are plain ints (see counters).
         self._counts: dict[str, int] = {
             "rx_messages": 0,
@@ -304,17 +328,29 @@ class Firmware:
         lim = params.limits
         fs[ftick.FS_TRAVEL_MIN], fs[ftick.FS_TRAVEL_MAX] = lim.travel_min_deg, lim.travel_max_deg
         fs[ftick.FS_EDGE_DECEL] = lim.a_max_dps2
+        fs[ftick.FS_SUPPLY_V], fs[ftick.FS_MM_WINDOW] = self._supply_v, s.sensor_mismatch_window_s
+        fs[ftick.FS_MM_TOL] = s.sensor_mismatch_tolerance_dps
+        fs[ftick.FS_MM_RATIO], fs[ftick.FS_MM_DEG] = (
+            s.sensor_mismatch_tolerance_ratio, s.sensor_mismatch_deg,
+        )  # fmt: skip
+        fi[ftick.FI_DIAG_TICKS] = s.encoder_diag_ticks
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
 
     # ------------------------------------------------------------------ public API
-    def servo_tick(self, encoder_counts: Any, rx_bytes: bytes, tx_free: int) -> bytes:
+    def servo_tick(
+        self, encoder_counts: Any, rx_bytes: bytes, tx_free: int, encoder_spi: Any = None
+    ) -> bytes:
         """One 500 Hz servo tick; returns the bytes written into the UART TX FIFO.
 
         Args:
             encoder_counts: AS5048 reading(s), int in [0, 16383] (``(N,)`` in batch).
             rx_bytes: bytes the UART received from the PC since the last tick.
             tx_free: free bytes in the TX FIFO; only whole frames that fit are written.
+            encoder_spi: the AS5048's SPI frames of this reading, ``(angle_frames,
+                diag_frames)`` (int ``(N,)`` each, ``firmware_model/as5048.py``), or None
+                for valid frames from a healthy chip (what the simulation passes while no
+                encoder fault is injected).
         """
         law = self.law
         if self._scalar:
@@ -326,6 +362,13 @@ class Firmware:
             and encoder_counts.shape == (self._n,)
         ):
             encoder_counts = np.broadcast_to(np.asarray(encoder_counts, dtype=np.int64), (self._n,))
+        if encoder_spi is None:
+            as5048.clear_diag(self._diag_ticks, self._diag_errors)
+        else:
+            encoder_counts = encoder_counts.copy()  # a bad angle is replaced (the caller's kept)
+            angle, diag = (np.asarray(f, dtype=np.int64).reshape(self._n) for f in encoder_spi)
+            as5048.check_reading(angle, diag, encoder_counts, law.C, self._diag_ticks,
+                                 self._diag_errors, self._booted)  # fmt: skip
         if not self._booted:
             self._boot(encoder_counts)
         law.estimate(encoder_counts)
@@ -335,8 +378,9 @@ class Firmware:
             self._silence()
         self._pack()
         hit = ftick.servo_stage(
-            law.P, law.C, law.S, law.G, law.K, self._fs, self._fi, self._enabled, self._prof
-        )
+            law.P, law.C, law.S, law.G, law.K, self._fs, self._fi, self._enabled, self._prof,
+            self._sf,
+        )  # fmt: skip
         self._unpack()
         if hit:
             self._check()
@@ -379,6 +423,7 @@ class Firmware:
                 self._oc_thr_a,
             )
             enabled = self._enabled.copy()
+        safety.brake_enable(enabled, self._brake_ticks)  # duty 0 with the bridge on
         if self._scalar:
             return float(law.duty[0]), bool(enabled[0])
         # Copies: the caller may keep them; the law's arrays change next period.
@@ -529,6 +574,7 @@ class Firmware:
     def _enable(self) -> None:
         ok = self._fault == 0
         self._enabled = ok.copy()
+        self._brake_ticks[ok] = 0  # the loops take over from the brake
         self._flags_version += 1
         self._enabled_s = bool(ok[0])
         self.law.reset_control()
@@ -594,12 +640,17 @@ class Firmware:
         watchdog = bool(self._watchdog_ticks) and (
             self.tick - self._last_rx_tick > self._watchdog_ticks
         )
-        # firmware_model.tick.servo_stage screened the members: here the masks and trips.
+        # firmware_model.tick.servo_stage screened the members and updated the sensor
+        # checks' state (self._sf): here the masks and trips.
         innov = np.abs(law.innovation_counts)
         stuck = law.stuck_ticks
         vel = law.vel_dps
         err = self.sp_pos_deg - law.pos_deg
         live = self._enabled.copy()
+        bad = self._diag_ticks >= s.encoder_diag_ticks
+        self._trip(live & bad, Fault.ENCODER_DIAG, self._diag_errors.astype(float),
+                   float(s.encoder_diag_ticks))  # fmt: skip
+        live &= ~bad
         enc = (innov > s.encoder_jump_counts) | (
             (stuck >= s.encoder_stuck_ticks)
             & (np.abs(law.vel_ref_dps) > s.encoder_stuck_min_vel_dps)
@@ -607,6 +658,10 @@ class Firmware:
         self._trip(live & enc, Fault.ENCODER, law.raw_counts.astype(float),
                    float(s.encoder_jump_counts))  # fmt: skip
         live &= ~enc
+        runaway = self._mismatch_deg > s.sensor_mismatch_deg
+        self._trip(live & runaway, Fault.SENSOR_MISMATCH, self._mismatch_deg.copy(),
+                   float(s.sensor_mismatch_deg))  # fmt: skip
+        live &= ~runaway
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel, s.over_speed_dps)
         live &= ~over
@@ -641,6 +696,10 @@ class Firmware:
         self._counts["faults"] += hits
         self._counts[f"fault_{fault.name}"] += hits
         self.law.reset_control(mask)
+        if fault is not Fault.OVER_CURRENT and self._brake_ticks_setting:
+            # The fault reaction: dynamic braking (both low sides on, duty 0) for brake_s,
+            # then the bridge off. An over-current (a short, perhaps) turns it off at once.
+            self._brake_ticks[mask] = self._brake_ticks_setting
         if mask[0]:
             v = float(value) if np.ndim(value) == 0 else float(np.asarray(value)[0])
             self._fault_info[flag.bit_length() - 1] = (self.tick, v, float(threshold))

@@ -18,11 +18,13 @@ __all__ = ["KERNEL_SOURCES", "check"]
 _ROOT = Path(__file__).resolve().parents[1]
 #: Every source file with compiled kernels or constants frozen into them (repo-relative).
 KERNEL_SOURCES = (
+    "firmware_model/as5048.py",
     "firmware_model/fixedpoint.py",
     "firmware_model/laws/dispatch.py",
     "firmware_model/laws/fixed_q.py",
     "firmware_model/laws/float64.py",
     "firmware_model/laws/layout.py",
+    "firmware_model/safety.py",
     "firmware_model/tick.py",
     "firmware_model/units.py",
     "serial_protocol/uart.py",

@@ -342,8 +342,8 @@ class LimitsParams(_Checked):
 
 @dataclass(frozen=True)
 class SafetyParams(_Checked):
-    """``[safety]``: trip thresholds. Each trip latches a ``Fault``, disables the bridge and
-    sends a ``FaultReport``; only ``ClearFault`` clears it.
+    """``[safety]``: trip thresholds. Each trip latches a ``Fault``, brakes (``brake_s``)
+    and disables the bridge and sends a ``FaultReport``; only ``ClearFault`` clears it.
 
     Attributes:
         over_current_a: |sensed current| above this for ``over_current_ticks`` samples.
@@ -357,6 +357,19 @@ class SafetyParams(_Checked):
             travel_min_deg .. travel_max_deg`` by more than this (every trajectory is planned
             within the travel; this trip catches what planning cannot, e.g. an axis dragged
             or coasting past the end).
+        sensor_mismatch_deg: how far the axis moved by the motor's back-EMF beyond what the
+            encoder and the model's tolerance (``sensor_mismatch_tolerance_dps`` + ``_ratio``
+            times the speed) explain, over a leaky window of ``sensor_mismatch_window_s``,
+            above this: a frozen or implausible encoder, or a runaway
+            (``firmware_model.safety.sensor_mismatch_step``).
+        encoder_diag_ticks: the AS5048 reports an error (SPI parity, EF, CORDIC overflow,
+            magnetic field out of range, offset compensation not finished) this many ticks
+            in a row.
+        brake_s: the fault reaction of every trip but over-current: dynamic braking (both
+            low-side switches on, duty 0: the motor's back-EMF drives a braking current
+            through its own resistance; no sensor needed) for this long, then the bridge
+            off. 0 = the bridge off at once (the motor coasts). Over-current always turns
+            the bridge off at once.
     """
 
     over_current_a: float = _f(7.5, _rng(0.01, 60.0))
@@ -367,6 +380,12 @@ class SafetyParams(_Checked):
     encoder_stuck_min_vel_dps: float = _f(20.0, _rng(0.01, 1e5))
     watchdog_s: float = _f(0.0, _rng(0.0, 3600.0))
     position_limit_margin_deg: float = _f(5.0, _rng(0.0, 1e5))
+    sensor_mismatch_deg: float = _f(0.75, _rng(0.01, 1e5))
+    sensor_mismatch_window_s: float = _f(0.05, _rng(0.004, 10.0))
+    sensor_mismatch_tolerance_dps: float = _f(50.0, _rng(0.0, 1e5))
+    sensor_mismatch_tolerance_ratio: float = _f(0.25, _rng(0.0, 10.0))
+    encoder_diag_ticks: int = _f(3, _irng(1, 1000))
+    brake_s: float = _f(0.4, _rng(0.0, 10.0))
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,11 @@
-"""The board's safety logic as pure functions: is a trajectory within the travel, and what
-can the board's wire fields hold.
+"""The board's safety logic as pure functions: is a trajectory within the travel, what can
+the board's wire fields hold, does the encoder agree with the motor's back-EMF.
 
 The firmware (``firmware_model/firmware.py``) calls these from its command handling; they
-hold no state of their own, so a test can call them directly.
+hold no state of their own, so a test can call them directly. The per-tick checks
+(:func:`sensor_mismatch_step`, the fault reaction's brake) are compiled, once for N members,
+and called from ``firmware_model.tick.servo_stage`` and the bridge stage: the same code in
+the firmware's Python tick and in the simulation's compiled tick (``sim/tick.py``).
 
 Travel (docs/model.md, "Safety"): every trajectory the board is asked to execute — a
 ``Move``, a ``Stop``, the replan of a ``SetLimits`` that lowers the limits of a move in
@@ -23,14 +26,19 @@ from __future__ import annotations
 
 import math
 
+import numba
+
 from planner.profile import Profile
 
 __all__ = [
     "WIRE_POS_MAX_DEG",
+    "brake_countdown",
+    "brake_enable",
     "edge_speed_dps",
     "wire_pos",
     "min_stop_decel_dps2",
     "profile_extent",
+    "sensor_mismatch_step",
     "travel_refusal",
 ]
 
@@ -141,3 +149,80 @@ def edge_speed_dps(
     """
     room = travel_max_deg - pos_deg if target_deg >= pos_deg else pos_deg - travel_min_deg
     return math.sqrt(2.0 * decel_dps2 * max(room, 0.0))
+
+
+@numba.njit(cache=True)
+def sensor_mismatch_step(
+    duty, current_a, vel_dps, live, supply_v, r_ohm, emf_v_per_dps, dt_s, window_s,
+    tolerance_dps, tolerance_ratio, step_max_deg, excess_deg,
+):  # fmt: skip
+    """One tick of the frozen / implausible sensor (runaway) check, for N members; updates
+    ``excess_deg`` in place and returns its largest value over the live members.
+
+    The motor's terminal equation gives a speed that needs no encoder: the back-EMF
+    ``duty * supply_v - r_ohm * current_a`` over the EMF constant ``emf_v_per_dps`` (V per
+    axis deg/s). Its difference from the encoder's velocity estimate ``vel_dps`` is allowed
+    ``tolerance_dps + tolerance_ratio * max(|emf speed|, |vel_dps|)`` (the model's errors:
+    the supply voltage, which this firmware does not measure, scales with the duty, the
+    resistance with the current); what exceeds it is integrated over a leaky window of
+    ``window_s`` (``e = max(0, e * (1 - dt / window) + dt * (|diff| - tolerance))``): the
+    degrees the axis moved, by its back-EMF, beyond what the encoder and the tolerance
+    explain; one tick adds at most ``step_max_deg`` (the firmware passes a third of the
+    threshold: no single sample, e.g. one current reading of a spike, can trip it). A
+    frozen encoder (with or without noise on it) reads 0 deg/s while the motor
+    turns; a runaway (the position not following the current the way the model says) shows
+    the same way. Integrating lets the short inductive and compute-delay transients of the
+    terminal equation pass. Members not ``live`` (bridge off: the terminal voltage is not
+    the duty's) restart at 0. A current against the duty (or with a duty of 0) is not a
+    measurement (the high-side sense is blind to it; the law reports its model's value):
+    the back-EMF speed is then the interval between the ends of 0 A and that value, and
+    only a speed outside it counts.
+
+    Args: ``duty, current_a, vel_dps`` float ``(N,)`` (the duty applied in the last period,
+    the measured current in A); ``live`` bool ``(N,)``; ``r_ohm, emf_v_per_dps`` float
+    ``(N,)``; ``excess_deg`` float ``(N,)``.
+    """
+    worst = 0.0
+    keep = 1.0 - dt_s / window_s
+    for j in range(duty.shape[0]):
+        if not live[j] or not emf_v_per_dps[j] > 0.0:  # off, or no EMF model to check by
+            excess_deg[j] = 0.0
+            continue
+        v = vel_dps[j]
+        drive_dps = duty[j] * supply_v / emf_v_per_dps[j]
+        emf_dps = drive_dps - r_ohm[j] * current_a[j] / emf_v_per_dps[j]
+        if current_a[j] * duty[j] > 0.0:
+            diff = abs(emf_dps - v)
+        else:
+            # A high-side sense cannot see a current against the duty (or with none): the
+            # law's value is its model's, the true current is only known to lie between
+            # 0 and about that value, and the back-EMF speed between the two ends.
+            lo, hi = min(drive_dps, emf_dps), max(drive_dps, emf_dps)
+            diff = lo - v if v < lo else (v - hi if v > hi else 0.0)
+        tol = tolerance_dps + tolerance_ratio * max(abs(emf_dps), abs(v))
+        e = excess_deg[j] * keep + min((diff - tol) * dt_s, step_max_deg)
+        e = e if e > 0.0 else 0.0
+        excess_deg[j] = e
+        if e > worst:
+            worst = e
+    return worst
+
+
+@numba.njit(cache=True)
+def brake_countdown(brake_ticks):
+    """One servo tick of the fault reaction's dynamic braking: each member's remaining
+    braking ticks (int64 ``(N,)``, set by a trip to ``brake_s`` worth) count down to 0."""
+    for j in range(brake_ticks.shape[0]):
+        if brake_ticks[j] > 0:
+            brake_ticks[j] -= 1
+
+
+@numba.njit(cache=True)
+def brake_enable(enable, brake_ticks):
+    """The bridge enable of one current-loop period: a member still braking after a trip
+    keeps its bridge on (``enable`` bool ``(N,)``, in place) with the duty 0 the law gives
+    a disabled member: both low-side switches on, the motor's back-EMF drives a braking
+    current through its own resistance."""
+    for j in range(enable.shape[0]):
+        if brake_ticks[j] > 0:
+            enable[j] = True

@@ -21,7 +21,7 @@ import numpy as np
 
 from firmware_model import safety
 from firmware_model.laws import dispatch as law
-from firmware_model.laws.layout import C_INNOV, C_STUCK, P_IMEAS, P_POS, P_VEL, P_VREF
+from firmware_model.laws.layout import C_INNOV, C_STUCK, P_DUTY, P_IMEAS, P_POS, P_VEL, P_VREF
 from serial_protocol import frame
 from serial_protocol.messages import State
 
@@ -35,16 +35,16 @@ __all__ = [
     FS_SP_POS, FS_SP_VEL, FS_SP_ACC, FS_TARGET, FS_V_CLAMP, FS_I_LIMIT, FS_FOLLOWING, FS_DT,
     FS_TOL, FS_OC_THR, FS_STUCK_MIN_VEL, FS_OVER_SPEED, FS_PROF_T0, FS_PROF_DURATION,
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
-    FS_TRAVEL_MAX, FS_EDGE_DECEL,
-) = range(23)  # fmt: skip
-N_FS = 23
+    FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
+) = range(28)  # fmt: skip
+N_FS = 28
 # fi: integers.
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
     FI_OC_ANY, FI_OC_SAMPLES, FI_TX_FRAMES, FI_TX_BYTES, FI_TX_DROPPED, FI_JUMP, FI_STUCK,
-    FI_HEARTBEAT, FI_JOG_TIMEOUT,
-) = range(17)  # fmt: skip
-N_FI = 17
+    FI_HEARTBEAT, FI_JOG_TIMEOUT, FI_DIAG_TICKS,
+) = range(18)  # fmt: skip
+N_FI = 18
 MODE_HOLD, MODE_PLAN, MODE_STEP = 0, 1, 2
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
@@ -98,13 +98,36 @@ def _in_position(P, fs, enabled):
     return True
 
 
+# sf: the sensor checks' and the fault reaction's state, per member (Firmware._sf).
+SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK = range(7)
+
+
 @numba.njit(cache=True)
-def servo_stage(P, C, S, G, K, fs, fi, enabled, prof):
-    """The setpoint of this tick (hold, the profile, or a STEP move's raw target), then, if
-    any member is enabled, the position and velocity loops (``servo``: the law's step) and
-    the trip screen. Returns True if a member meets a trip condition (encoder jump or
-    stuck, over-speed, following error, watchdog): ``Firmware._check`` takes it from
-    there. ``fi[FI_TICK]`` is not advanced here."""
+def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
+    """The fault reaction's brake countdown, the back-EMF check
+    (``safety.sensor_mismatch_step``), the setpoint of this tick (hold, the profile, or a
+    STEP move's raw target), then, if any member is enabled, the position and velocity loops
+    (``servo``: the law's step) and the trip screen. Returns True if a member meets a trip
+    condition (encoder jump or stuck, AS5048 errors, back-EMF mismatch, over-speed, travel,
+    following error, watchdog): ``Firmware._check`` takes it from there. ``fi[FI_TICK]`` is
+    not advanced here. ``sf``: ``(mismatch_deg, r_ohm, emf_v_per_dps, brake_ticks,
+    diag_ticks, diag_errors, mismatch_peak_deg)``, ``(N,)`` each (the ``SF_*`` rows)."""
+    mismatch, brake, diag_ticks = sf[SF_MISMATCH], sf[SF_BRAKE], sf[SF_DIAG_TICKS]
+    safety.brake_countdown(brake)
+    # The duty applied in the last current period, the current it measured, the encoder's
+    # speed: the check needs no law step of this tick.
+    worst = safety.sensor_mismatch_step(
+        P[P_DUTY], P[P_IMEAS], P[P_VEL], enabled, fs[FS_SUPPLY_V], sf[SF_R], sf[SF_EMF],
+        fs[FS_DT], fs[FS_MM_WINDOW], fs[FS_MM_TOL], fs[FS_MM_RATIO], fs[FS_MM_DEG] / 3.0,
+        mismatch,
+    )  # fmt: skip
+    sensor = worst > fs[FS_MM_DEG]
+    peak = sf[SF_PEAK]
+    for j in range(peak.shape[0]):
+        peak[j] = max(peak[j], mismatch[j])
+    for j in range(diag_ticks.shape[0]):
+        if enabled[j] and diag_ticks[j] >= fi[FI_DIAG_TICKS]:
+            sensor = True
     t_s = fi[FI_TICK] * fs[FS_DT]
     mode = fi[FI_MODE]
     v_clamp = fs[FS_V_CLAMP]
@@ -135,7 +158,7 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof):
     if not live:
         return False
     law.servo(p, v, a, v_clamp, fs[FS_I_LIMIT], P, C, S, G, K)
-    return trip_screen(P, C, fs, fi)
+    return trip_screen(P, C, fs, fi) or sensor
 
 
 @numba.njit(cache=True)

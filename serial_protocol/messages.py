@@ -230,6 +230,8 @@ class Fault(IntEnum):
     WATCHDOG = 5
     TRAVEL = 6  # the estimated position beyond the travel by more than the margin
     BRIDGE = 7
+    ENCODER_DIAG = 8  # the AS5048 reports an error (SPI parity, EF, CORDIC, magnetic field)
+    SENSOR_MISMATCH = 9  # the encoder disagrees with the back-EMF: frozen sensor, runaway
 
 
 class FaultFlag(IntFlag):
@@ -245,6 +247,8 @@ class FaultFlag(IntFlag):
     OVER_SPEED = 1 << 9  # motion: |velocity| above over_speed_dps
     TRAVEL = 1 << 10  # motion: position outside the travel limits
     ENCODER = 1 << 16  # sensor: implausible jump or stuck reading
+    ENCODER_DIAG = 1 << 17  # sensor: the AS5048 reports an error
+    SENSOR_MISMATCH = 1 << 18  # sensor: the encoder disagrees with the back-EMF
     WATCHDOG = 1 << 24  # link: no PC frame of the session within the watchdog time
 
 
@@ -257,6 +261,8 @@ FAULT_FLAG: dict[Fault, FaultFlag] = {
     Fault.WATCHDOG: FaultFlag.WATCHDOG,
     Fault.TRAVEL: FaultFlag.TRAVEL,
     Fault.BRIDGE: FaultFlag.BRIDGE,
+    Fault.ENCODER_DIAG: FaultFlag.ENCODER_DIAG,
+    Fault.SENSOR_MISMATCH: FaultFlag.SENSOR_MISMATCH,
 }
 
 

@@ -12,6 +12,17 @@ the magnet's angle, i.e. of the motor angle; its first two harmonics (once per t
 off-centre magnet, twice per turn from an elliptic field) are added to the reading,
 ``A1 sin(theta + phi1) + A2 sin(2 theta + phi2)``. At speed they become a velocity ripple at
 the motor's rotation frequency in the raw count difference (docs/model.md).
+
+The chip's diagnostics: the angle and diagnostics + AGC SPI frames of every reading, in
+the layout of ``firmware_model/as5048.py`` (the firmware's driver, which checks them).
+:meth:`Encoder.inject` switches a fault on or off per member (the fault-injection
+switch of the tests and benchmarks): ``"freeze"`` (the angle stops where it is, the noise
+stays: a magnet slipping on its shaft; the chip itself reports nothing), ``"mag_weak"``
+(AGC 255, COMP_HIGH, 8x the noise), ``"mag_strong"`` (AGC 0, COMP_LOW), ``"cordic"``
+(COF, random angles), ``"parity"`` (one bit of the angle frame flipped on the wire),
+``"error_flag"`` (EF set). :meth:`Encoder.spi_frames` gives the frames of the last
+reading; it returns None while no member has a fault that shows in the frames (the frames
+are then all valid, with OCF set and the nominal AGC), so a healthy run builds none.
 """
 
 from __future__ import annotations
@@ -22,12 +33,33 @@ from typing import Any
 import numba
 import numpy as np
 
+from firmware_model.as5048 import (
+    ANGLE_MASK,
+    COF_BIT,
+    COMP_HIGH_BIT,
+    COMP_LOW_BIT,
+    EF_BIT,
+    OCF_BIT,
+    parity_bit,
+)
 from sim.params import EncoderParams, per_member
 from sim.plant import POS, VEL
 
-__all__ = ["BLOCK", "Encoder", "inl_counts", "inl_params"]
+__all__ = [
+    "AGC_NOMINAL", "BLOCK", "DIAG_FAULTS", "Encoder", "FAULT_KINDS", "inject_faults",
+    "inl_counts", "inl_params",
+]  # fmt: skip
 
 BLOCK = _BLOCK = 4096  # ticks of noise drawn at once (at most)
+#: The AGC value of the magnet at its nominal distance (assumed: mid-range).
+AGC_NOMINAL = 128
+#: Injectable faults (see the module docstring); the index is the member's fault code.
+FAULT_KINDS = ("none", "freeze", "mag_weak", "mag_strong", "cordic", "parity", "error_flag")
+#: The faults that show in the SPI frames (all but a frozen magnet).
+DIAG_FAULTS = ("mag_weak", "mag_strong", "cordic", "parity", "error_flag")
+(
+    _F_NONE, _F_FREEZE, _F_MAG_WEAK, _F_MAG_STRONG, _F_CORDIC, _F_PARITY, _F_ERROR_FLAG,
+) = range(len(FAULT_KINDS))  # fmt: skip
 
 
 class Encoder:
@@ -46,10 +78,60 @@ class Encoder:
         self._params: tuple[np.ndarray, ...] = ()
         self.block = np.empty((0, 0))
         self.row = 0
+        self._fault = np.zeros(0, dtype=np.int64)  # per member: index into FAULT_KINDS
+        self._frozen_counts = np.zeros(0)
+        self._last = np.zeros(0, dtype=np.int64)
+        self._spi: tuple[np.ndarray, np.ndarray] | None = None
+        self._faulted = False  # the last read had a fault injected
+        # The CORDIC fault's random angles: a small generator of the compiled code's own
+        # (an LCG state, (1,) int64), seeded from rng at the first injection.
+        self._lcg = np.zeros(1, dtype=np.int64)
+
+    def inject(self, kind: str, members: Any = None, x: np.ndarray | None = None) -> None:
+        """Switch fault ``kind`` (one of :data:`FAULT_KINDS`; ``"none"`` heals) on for the
+        members in ``members`` (an index, a list or a bool mask; all by default). A
+        ``"freeze"`` holds the angle of plant state ``x`` (``(N, 5)`` or ``(5,)``), or of the
+        last reading.
+        """
+        if kind not in FAULT_KINDS:
+            raise ValueError(f"kind = {kind!r}: must be one of {FAULT_KINDS}")
+        if x is not None:
+            x = np.atleast_2d(np.asarray(x, dtype=float))
+        n = self._n or (x.shape[0] if x is not None else 1)
+        if self._fault.shape[0] != n:
+            self._fault = np.zeros(n, dtype=np.int64)
+            self._frozen_counts = np.zeros(n)
+            self._lcg[0] = int(self.rng.integers(1, 1 << 31))
+        sel = np.zeros(n, dtype=bool)
+        sel[slice(None) if members is None else members] = True
+        self._fault[sel] = FAULT_KINDS.index(kind)
+        if kind == "freeze":
+            if x is not None:
+                offset = np.broadcast_to(np.asarray(self.params.offset_counts, float), (n,))
+                angle = x[:, POS] * self._counts_per_rad + offset
+            else:
+                angle = self._last.astype(float) if self._last.shape[0] == n else np.zeros(n)
+            self._frozen_counts[sel] = angle[sel]
 
     @property
     def noisy(self) -> bool:
         return self._noisy
+
+    @property
+    def faulty(self) -> bool:
+        """Whether a fault is injected (the readings then go through :func:`inject_faults`
+        and the firmware gets the SPI frames)."""
+        return bool(self._fault.any())
+
+    def fault_args(self, n: int) -> tuple[np.ndarray, ...]:
+        """``(fault, frozen_counts, lcg, angle_frames, diag_frames)``: the arguments of
+        :func:`inject_faults` after the noise (the compiled tick's too)."""
+        if self._fault.shape[0] != n:
+            self._fault = np.zeros(n, dtype=np.int64)
+            self._frozen_counts = np.zeros(n)
+        if self._spi is None or self._spi[0].shape[0] != n:
+            self._spi = (np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64))
+        return (self._fault, self._frozen_counts, self._lcg, *self._spi)
 
     def kernel_params(self, n: int) -> tuple[Any, ...]:
         """``(latency_s, offset_counts, noise_lsb)`` as ``(n,)`` arrays, then counts per rad
@@ -87,7 +169,17 @@ class Encoder:
         counts = np.empty(n, dtype=np.int64)
         latency, offset, noise, counts_per_rad, counts_per_rev, inl = params
         _read(x, latency, offset, noise, draw, counts_per_rad, counts_per_rev, counts, inl)
+        self._faulted = self.faulty
+        if self._faulted:
+            inject_faults(counts, noise, draw, counts_per_rev, *self.fault_args(n))
+        self._last = counts
         return counts
+
+    def spi_frames(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The angle and diagnostics frames (int64 ``(N,)``, 16 bits each) of the last
+        :meth:`read`, or None while no fault is injected (every frame valid, OCF set, AGC
+        nominal: a healthy run builds none)."""
+        return self._spi if self._faulted else None
 
 
 def inl_params(params: EncoderParams, n: int) -> np.ndarray:
@@ -130,3 +222,43 @@ def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_p
         if noisy:
             c += noise_lsb[j] * draw[j]
         out[j] = np.int64(math.floor(c)) % counts_per_rev  # floored modulo, as Python
+
+
+@numba.njit(cache=True)
+def inject_faults(counts, noise_lsb, draw, counts_per_rev, fault, frozen_counts, lcg, angle, diag):
+    """The injected faults of N members (``fault``: index into :data:`FAULT_KINDS`) on the
+    readings ``counts`` (int64 ``(N,)``, in place), and the SPI frames of every member
+    (``angle``, ``diag``, int64 ``(N,)``, in the layout of ``firmware_model/as5048.py``).
+    ``draw`` is the reading's standard normals (or none), ``frozen_counts`` the angle a
+    frozen magnet holds, ``lcg`` the state of the CORDIC fault's random angles."""
+    noisy = draw.shape[0] > 0
+    for j in range(counts.shape[0]):
+        kind = fault[j]
+        noise = noise_lsb[j] * draw[j] if noisy else 0.0
+        c = counts[j]
+        d = OCF_BIT | AGC_NOMINAL
+        a_extra = 0
+        if kind == _F_FREEZE:  # the angle stops, the noise stays; the chip says nothing
+            c = np.int64(math.floor(frozen_counts[j] + noise)) % counts_per_rev
+        elif kind == _F_MAG_WEAK:  # AGC at its end, COMP_HIGH, 8x the noise
+            c = (c + np.int64(math.floor(7.0 * noise))) % counts_per_rev
+            d = OCF_BIT | COMP_HIGH_BIT | 255
+        elif kind == _F_MAG_STRONG:  # AGC 0, COMP_LOW
+            d = OCF_BIT | COMP_LOW_BIT
+        elif kind == _F_CORDIC:  # COF: the angle is garbage
+            lcg[0] = (lcg[0] * 1103515245 + 12345) & 0x7FFFFFFF
+            c = (lcg[0] >> 8) % counts_per_rev
+            d |= COF_BIT
+        elif kind == _F_ERROR_FLAG:
+            a_extra = EF_BIT
+            d |= EF_BIT
+        a = (c & ANGLE_MASK) | a_extra
+        a |= parity_bit(a) << 15
+        d |= parity_bit(d) << 15
+        if kind == _F_PARITY:
+            # A bit flipped on the wire after the chip computed the parity.
+            a ^= 1 << 13
+            c = a & ANGLE_MASK
+        counts[j] = c
+        angle[j] = a
+        diag[j] = d

@@ -547,6 +547,7 @@ class Simulation:
         flags[st.F_FRAME_BYTES] = frame.TELEMETRY_FRAME_BYTES
         flags[st.F_ENC_NOISY] = enc.noisy
         flags[st.F_ADC_NOISY] = self._adc_noisy
+        flags[st.F_ENC_FAULT] = enc.faulty
         txbuf = np.empty((n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
         en_now = np.zeros(n, dtype=bool)
         counts, adc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
@@ -588,11 +589,11 @@ class Simulation:
             )  # fmt: skip
             fw_args = (
                 fw._fs, fw._fi, fw._enabled, fw._fault, fw._oc_ticks, fw._prof, en_now,
-                fw._flags,
+                fw._flags, fw._sf,
             )  # fmt: skip
             args = (
                 k_end, ctx, credit, flags, (law.P, law.C, law.S, law.G, law.K), fw_args, sim,
-                plant_args, logs, txbuf, ftick.TABLES,
+                plant_args, logs, txbuf, ftick.TABLES, enc.fault_args(n),
             )  # fmt: skip
             if law.fixed in _LOADED:
                 code = st.run_ticks(*args)
@@ -702,8 +703,9 @@ class Simulation:
             self._xlog[k] = x
             self._arrays["bus_v"][k] = self.bus_v
         counts = self.encoder.read(x, self._noise_rows)
+        # The AS5048's SPI frames while a fault is injected (None: valid frames).
         tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
-                           self.uart_tx.free)  # fmt: skip
+                           self.uart_tx.free, self.encoder.spi_frames())  # fmt: skip
         if tx:
             self.uart_tx.write(tx)
         t = k * self.dt_s

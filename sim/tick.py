@@ -3,16 +3,19 @@
 ``run_ticks`` runs the ticks of ``Simulation.step`` for the project's firmware, in the order
 of ``sim/loop.py``'s docstring, for N members:
 
-1. ``TOP``: the plant state at the sampling instant into the log; the encoder reading;
-   the observer (``law.estimate``).
-2. ``SERVO``: the setpoint, the position and velocity loops, the trip screen
-   (``firmware_model.tick.servo_stage``).
+1. ``TOP``: the plant state at the sampling instant into the log; the encoder reading
+   (with its injected faults and SPI frames, ``sim.encoder.inject_faults``, and the
+   firmware's check of the frames, ``firmware_model.as5048.check_reading``, while a fault
+   is injected); the observer (``law.estimate``).
+2. ``SERVO``: the brake countdown, the back-EMF check, the setpoint, the position and
+   velocity loops, the trip screen (``firmware_model.tick.servo_stage``).
 3. ``TICKUP``, ``TRANSMIT``: the firmware's tick count, the telemetry frame into the TX
    FIFO (``firmware_model.tick.frame_telemetry``), as ``Firmware._transmit`` does with no
    reply queued.
 4. ``CURRENT``, ``BRIDGE``, ``PLANT`` (``current_loop_multiple`` times): the ADC, the
    current loop and its over-current screen (``firmware_model.tick.current_stage``), the
-   bridge, the plant step (``sim.supply.step_period``: ``sim.plant_kernel.step_members``,
+   bridge (kept on for a member braking after a trip, ``firmware_model.safety.brake_enable``),
+   the plant step (``sim.supply.step_period``: ``sim.plant_kernel.step_members``,
    in sub-steps coupled to the bus with ``[supply] bus_model``).
 5. ``LOG``: the firmware's signals and the bridge voltage into the log row; the TX line
    shifts out one tick of bytes (``serial_protocol.uart.pace``).
@@ -39,6 +42,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from firmware_model import as5048, safety
 from firmware_model.laws import dispatch as law_steps
 from firmware_model.laws.layout import (
     C_BUS_ADC,
@@ -67,7 +71,7 @@ from firmware_model.tick import (
 )
 from serial_protocol import uart
 from sim.bridge import apply_bridge, read_adc, switching
-from sim.encoder import _read
+from sim.encoder import _read, inject_faults
 from sim.supply import read_bus_adc, step_period
 
 __all__ = ["run_ticks"]
@@ -85,28 +89,32 @@ N_CX = 14
 # flags: what the caller says about this run.
 (
     F_REPLIES, F_RX_PRESENT, F_RX_ACTIVE, F_FRAMER, F_KEEP, F_FIFO, F_FRAME_BYTES,
-    F_ENC_NOISY, F_ADC_NOISY, F_SILENCE_AT,
-) = range(10)  # fmt: skip
-N_F = 10
+    F_ENC_NOISY, F_ADC_NOISY, F_SILENCE_AT, F_ENC_FAULT,
+) = range(11)  # fmt: skip
+N_F = 11
 
 _pace = numba.njit(cache=True)(uart.pace)
 
 
 @numba.njit(cache=True)
 def run_ticks(
-    k_end, ctx, credit, flags, law, fw, sim, plant, logs, txbuf, tables,
+    k_end, ctx, credit, flags, law, fw, sim, plant, logs, txbuf, tables, enc_faults,
 ):  # fmt: skip
     """Run ticks until ``k_end`` or an event (see the module docstring); returns the
     ``STOP_*`` code. ``credit`` (``(1,)``) is the TX line's banked credit.
 
     ``law = (P, C, S, G, K)``: the control law's state (its arithmetic picks its steps);
-    ``fw = (fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags)``; ``sim = (x0, x1, dt_s,
+    ``fw = (fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf)`` (``sf``:
+    ``firmware_model.tick.servo_stage``'s); ``sim = (x0, x1, dt_s,
     multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
     sense_sign, volt, duty, enable, counts, adc, bytes_per_s)``; ``plant = (keys, group,
     slots, phis, rates, consts, levels, budget, bus)`` (``bus``: ``sim.supply.Bus``'s
-    arrays); ``logs = (xlog, signals (11 arrays of (capacity, N)), voltage, bus_v)``."""
+    arrays); ``logs = (xlog, signals (11 arrays of (capacity, N)), voltage, bus_v)``;
+    ``enc_faults``: ``Encoder.fault_args`` (used while ``flags[F_ENC_FAULT]``)."""
     P, C, S, G, K = law
-    fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags = fw
+    fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf = fw
+    brake_ticks, diag_ticks, diag_errors = sf[3], sf[4], sf[5]
+    enc_fault, frozen_counts, lcg, angle_frames, diag_frames = enc_faults
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
     keys, group, slots, phis, rates, consts, levels, budget, bus = plant
@@ -144,6 +152,16 @@ def run_ticks(
             _read(
                 x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
             )
+            if flags[F_ENC_FAULT]:
+                inject_faults(
+                    counts, enc_noise, draw, counts_per_rev, enc_fault, frozen_counts, lcg,
+                    angle_frames, diag_frames,
+                )  # fmt: skip
+                as5048.check_reading(
+                    angle_frames, diag_frames, counts, C, diag_ticks, diag_errors, True
+                )
+            else:
+                as5048.clear_diag(diag_ticks, diag_errors)
             law_steps.estimate(counts, P, C, S, G, K)
             stage = SERVO
             silence = flags[F_SILENCE_AT] >= 0 and fi[FI_TICK] >= flags[F_SILENCE_AT]
@@ -151,7 +169,7 @@ def run_ticks(
                 ctx[CX_STAGE] = SERVO
                 return STOP_RX
         if stage == SERVO:
-            hit = servo_stage(P, C, S, G, K, fs, fi, enabled, prof)
+            hit = servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf)
             stage = TICKUP
             if hit:
                 ctx[CX_STAGE] = TICKUP
@@ -210,6 +228,7 @@ def run_ticks(
                     ctx[CX_STAGE] = BRIDGE
                     return STOP_OC
             if stage == BRIDGE:
+                safety.brake_enable(en_now, brake_ticks)
                 apply_bridge(P[P_DUTY], en_now, arr, supply_v, duty, enable, sense_sign, volt)
                 switching(x, supply_v, shifts, duty, sense_sign, volt)
                 stage = PLANT

@@ -278,15 +278,22 @@ def test_queries_and_settings_round_trip(make_bench):
 
 
 def _check_fault_cycle(b, fault):
-    """The bridge is off, the fault is latched and reported, motion is refused until
-    ClearFault + SetEnable."""
+    """The bridge brakes (duty 0, on: [safety] brake_s; over-current: none) and is then
+    off, the fault is latched and reported, motion is refused until ClearFault +
+    SetEnable."""
     reports = b.replies(FaultReport)
     assert [r.fault for r in reports] == [fault]
     trip = reports[0].tick
     state, duty = b.arr("state"), b.arr("duty")
     assert state[trip] == State.FAULT and state[-1] == State.FAULT
     assert np.all(duty[trip + 1 :] == 0.0)
-    assert not np.any(np.asarray(b.enables[trip + 1 :]))
+    s = b.fw.params.safety
+    brake = 0 if fault is Fault.OVER_CURRENT else round(s.brake_s * b.fw.params.servo.tick_hz)
+    m = b.fw.params.servo.current_loop_multiple
+    enables = np.asarray(b.enables).reshape(len(b.enables), -1)[:, 0]
+    # Current periods from the trip's tick on: braking (bridge on, duty 0), then off.
+    after = enables[(trip + 1) * m :]
+    assert np.all(after[: max(brake - 1, 0) * m]) and not np.any(after[brake * m :])
     assert b.fw.counters[f"fault_{fault.name}"] == 1
     t = b.fw.tick
     v = min(200.0, b.fw.v_max_dps)
@@ -360,7 +367,8 @@ def test_encoder_jump_trip(make_bench):
 
 
 def test_encoder_stuck_trip(make_bench):
-    b = make_bench()
+    # The back-EMF check would see the frozen reading first (test_safety.py): out of the way.
+    b = make_bench(FirmwareParams(safety=SafetyParams(sensor_mismatch_deg=1e5)))
     frozen = {}
     b.encoder_override = lambda k, c: frozen.setdefault("c", c) if 40 <= k < 300 else c
     b.run(300, {5: [move(1, 100.0, a=200.0)]})

@@ -41,7 +41,8 @@ from serial_protocol.messages import (
     Stop,
     Telemetry,
 )
-from sim.loop import Simulation
+from sim.encoder import Encoder
+from sim.loop import Simulation, run
 
 TRAVEL_DEG = 3600.0
 SESSION = 1
@@ -288,3 +289,194 @@ def test_min_stop_decel_and_edge_speed():
     assert safety.edge_speed_dps(0.0, 50.0, -100.0, 100.0, 2000.0) == pytest.approx(632.455532)
     assert safety.edge_speed_dps(0.0, -50.0, -25.0, 100.0, 2000.0) == pytest.approx(316.227766)
     assert safety.edge_speed_dps(120.0, 150.0, -100.0, 100.0, 2000.0) == 0.0
+
+
+# ------------------------------------------------------------------ §3 sensor diagnostics
+
+
+def _open_and_move(sim, v_dps):
+    """Open a session and send a Move towards a far target at ``v_dps``."""
+    sim.pc_write(frame.encode(Hello(0, session=SESSION), 0))
+    move = dataclasses.replace(_move(1, 30000.0, v=v_dps, a=2000.0), session=SESSION)
+    sim.pc_write(frame.encode(move, 1))
+
+
+def _freeze_run(kind, v_dps, *, seconds_before=3.0, seconds_after=2.0, **overrides):
+    """Cruise at ``v_dps`` towards a far target, inject encoder fault ``kind`` (sim's
+    fault-injection switch); return the log, the tick of the injection and the reports."""
+    sim = Simulation(paper_bench(**overrides), seed=3)
+    _open_and_move(sim, v_dps)
+    k0 = round(seconds_before / sim.dt_s)
+    sim.step(k0)
+    sim.encoder.inject(kind, x=sim.plant_state)
+    sim.step(round(seconds_after / sim.dt_s))
+    reports = [m for m in frame.Decoder().feed(sim.pc_read()) if isinstance(m, FaultReport)]
+    return sim.log(), k0, reports
+
+
+@pytest.mark.parametrize("v_dps", [30.0, 100.0, 130.0])
+def test_a_frozen_encoder_with_noise_on_it_is_flagged(v_dps):
+    # Before: the +-1 count of noise kept the stuck check from ever firing and the jump
+    # check sees nothing below ~140 deg/s: the loop pushed the axis on (the issue saw 398 deg
+    # at up to 1,141 deg/s before a following-error trip; disarmed here: 859-2,088 deg to rest).
+    log, k0, reports = _freeze_run("freeze", v_dps)
+    assert [r.fault for r in reports] == [Fault.SENSOR_MISMATCH]
+    k = reports[0].tick
+    assert k - k0 < 35  # measured 6-25 ticks (docs/model.md)
+    assert log.true_pos_deg[k] - log.true_pos_deg[k0] < 5.0  # measured 1.6-3.8 deg
+    assert log.true_pos_deg[-1] - log.true_pos_deg[k0] < 15.0  # measured 7.6-11.0 deg to rest
+    assert abs(log.true_vel_dps[-1]) < 0.5
+
+
+def test_the_compiled_tick_catches_a_noisy_freeze(monkeypatch):
+    # The checks run inside sim/tick.py's multi-tick call: the Python per-tick path
+    # (Simulation._step) runs only the boot tick. Before, a run through the compiled path
+    # skipped the back-EMF check, the AS5048 frames and the brake.
+    python_ticks = []
+    step = Simulation._step
+    monkeypatch.setattr(Simulation, "_step", lambda self: python_ticks.append(1) or step(self))
+    log, k0, reports = _freeze_run("freeze", 100.0)
+    assert len(python_ticks) == 1  # the boot
+    assert [r.fault for r in reports] == [Fault.SENSOR_MISMATCH]
+    k = reports[0].tick
+    # The brake ran in the compiled tick too: bridge on at duty 0, the current reversed.
+    assert np.all(log.voltage_v[k + 2 : k + 150] == 0.0) and log.current_a[k + 3] < -1.0
+    assert abs(log.true_vel_dps[-1]) < 0.5
+
+
+def _member_streams(monkeypatch):
+    """Encoder noise drawn per member from its own generator (member j: seed 100 + j), so
+    that member j of a batch reads what a single axis with that generator reads."""
+
+    def refill(self, n, rows=4096):
+        if getattr(self, "_streams", None) is None:
+            self._streams = [np.random.default_rng(100 + j) for j in range(n)]
+        self.block = np.stack([g.standard_normal(rows) for g in self._streams], axis=1)
+        self.row = 0
+
+    monkeypatch.setattr(Encoder, "refill", refill)
+
+
+def _first_fault_tick(fault):
+    hits = np.flatnonzero(fault)
+    return int(hits[0]) if hits.size else -1
+
+
+@pytest.mark.parametrize("v_dps", [60.0, 990.0])
+def test_one_axis_and_a_batch_detect_a_freeze_at_the_same_tick(monkeypatch, v_dps):
+    _member_streams(monkeypatch)
+    ticks = {}
+    for batch in (None, 3):
+        sim = Simulation(paper_bench(), batch=batch, seed=3)
+        _open_and_move(sim, v_dps)
+        sim.step(1500)
+        # Member 0 (and 2) frozen, member 1 healthy.
+        sim.encoder.inject("freeze", members=[0, 2] if batch else None, x=sim.plant_state)
+        sim.step(500)
+        log = sim.log()
+        ticks[batch] = np.atleast_2d(log.fault)
+    one, many = ticks[None][0], ticks[3]
+    k = _first_fault_tick(one)
+    assert 1500 < k < 1560
+    assert _first_fault_tick(many[0]) == k and many[0][k] == one[k]
+    assert 1500 < _first_fault_tick(many[2]) < 1560
+    assert not many[1].any()  # the healthy member goes on
+
+
+def test_a_freeze_at_full_speed_trips_at_once_and_the_brake_stops_the_axis():
+    log, k0, reports = _freeze_run("freeze", 990.0)
+    assert [r.fault for r in reports] == [Fault.ENCODER]  # the reading jumps off prediction
+    assert reports[0].tick == k0 + 1
+    # Dynamic braking: the motor's own back-EMF through its resistance (~16 A at first).
+    k = reports[0].tick
+    assert np.all(log.voltage_v[k + 2 : k + 150] == 0.0) and log.current_a[k + 5] < -10.0
+    travel = log.true_pos_deg[-1] - log.true_pos_deg[k0]
+    assert travel < 80.0  # measured 65.2 deg; coasting (brake_s = 0): 919 deg
+    coast, _, _ = _freeze_run("freeze", 990.0, **{"safety.brake_s": 0.0})
+    assert coast.true_pos_deg[-1] - coast.true_pos_deg[k0] > 800.0  # measured 918 deg
+
+
+@pytest.mark.parametrize(
+    ("kind", "error"),
+    [
+        ("mag_weak", "field_weak"),
+        ("mag_strong", "field_strong"),
+        ("cordic", "cordic_overflow"),
+        ("parity", "angle_parity"),
+        ("error_flag", "error_flag"),
+    ],
+)
+def test_each_as5048_diagnostic_trips_encoder_diag_with_its_bit(kind, error):
+    from firmware_model import as5048
+
+    log, k0, reports = _freeze_run(kind, 200.0, seconds_before=1.0, seconds_after=1.0)
+    assert [r.fault for r in reports] == [Fault.ENCODER_DIAG]
+    assert int(reports[0].value) & (1 << as5048.ERROR_NAMES.index(error))
+    assert reports[0].tick - k0 == FirmwareParams().safety.encoder_diag_ticks - 1
+    # The corrupt angles were not used: the position stayed on the axis.
+    k = reports[0].tick
+    assert abs(log.pos_deg[k] - (log.true_pos_deg[k] + log.pos_deg[0] - log.true_pos_deg[0])) < 2
+
+
+def test_one_corrupt_frame_is_bridged_by_the_prediction():
+    sim = Simulation(paper_bench(), seed=3)
+    _open_and_move(sim, 990.0)
+    sim.step(1500)
+    sim.encoder.inject("parity", x=sim.plant_state)
+    sim.step(1)  # one frame with a flipped bit (the angle off by 8192 counts)
+    sim.encoder.inject("none")
+    sim.step(500)
+    log = sim.log()
+    assert np.all(log.fault == 0)
+    offset = log.pos_deg[0] - log.true_pos_deg[0]
+    assert np.max(np.abs(log.pos_deg[1490:] - log.true_pos_deg[1490:] - offset)) < 0.5
+
+
+@pytest.mark.parametrize("supply_v", [20.0, 26.0])
+def test_the_back_emf_check_holds_still_off_the_nominal_supply(supply_v):
+    # The firmware assumes 24 V; the tuner spreads the supply over 20-26 V. Fig. 6's step
+    # without planning (saturated duty, the hardest transients) must not trip it.
+    from sim.reproduce.experiments import load, with_duration
+
+    log = run(with_duration(load("fig6"), 4.0), overrides={"supply.voltage_v": supply_v}).log
+    assert np.all(log.fault == 0)
+
+
+def test_sensor_mismatch_step_integrates_only_what_the_tolerance_does_not_explain():
+    n = 3
+    duty = np.array([0.5, 0.5, 0.5])
+    current = np.zeros(n)
+    emf = np.full(n, 0.02)  # V per deg/s: 0.5 * 24 V -> 600 deg/s
+    vel = np.array([600.0, 0.0, 0.0])
+    live = np.array([True, True, False])
+    e = np.zeros(n)
+    args = (24.0, np.zeros(n), emf, 0.002, 0.05, 100.0, 0.3, 1.0)
+    worst = safety.sensor_mismatch_step(duty, current, vel, live, *args, e)
+    # member 1: |600 - 0| - (100 + 0.3 * 600) = 320 deg/s beyond, for 2 ms
+    assert e[0] == 0.0 and e[1] == pytest.approx(0.64) and e[2] == 0.0 and worst == e[1]
+    for _ in range(2000):
+        safety.sensor_mismatch_step(duty, current, vel, live, *args, e)
+    assert e[1] == pytest.approx(320.0 * 0.05, rel=1e-3)  # the leaky window's steady state
+    # One tick adds at most step_max_deg: a single wild sample cannot trip it.
+    e[:] = 0.0
+    clamped = (*args[:-1], 0.25)
+    safety.sensor_mismatch_step(duty, np.full(n, -50.0), vel, live, *clamped, e)
+    assert e[1] == 0.25
+
+
+def test_a_current_the_high_side_sense_cannot_see_spans_the_back_emf_speed():
+    # Duty +0.1 (120 deg/s of drive at 24 V, 0.02 V per deg/s) and the law's model current
+    # -5 A (against the duty: not a measurement): the back-EMF speed lies anywhere between
+    # 120 deg/s (0 A) and 420 deg/s (-5 A through 1.2 ohm), so 200 deg/s is no mismatch,
+    # 0 deg/s is 120 deg/s below it; with a measured +5 A the speed would be -180 deg/s.
+    n = 3
+    duty = np.full(n, 0.1)
+    emf = np.full(n, 0.02)
+    vel = np.array([200.0, 0.0, 200.0])
+    current = np.array([-5.0, -5.0, 5.0])
+    e = np.zeros(n)
+    args = (24.0, np.full(n, 1.2), emf, 0.002, 0.05, 0.0, 0.0, 10.0)
+    safety.sensor_mismatch_step(duty, current, vel, np.ones(n, bool), *args, e)
+    assert e[0] == 0.0
+    assert e[1] == pytest.approx(120.0 * 0.002)
+    assert e[2] == pytest.approx(380.0 * 0.002)

@@ -60,13 +60,18 @@ def test_current_loop_check_matches_simulation_of_the_sampled_loop():
 @pytest.mark.parametrize(("factor", "stable"), [(8.0, True), (12.0, False)])
 def test_velocity_gain_edge_agrees_with_the_closed_loop(make_bench, factor, stable):
     # Oracle: the closed loop on the test plant. x8 holds still, x12 rings at the clamp.
-    from firmware_model.params import VelocityLoopGains
+    from firmware_model.params import SafetyParams, VelocityLoopGains
     from serial_protocol.messages import Move
 
     gains = _defaults()
     gains["kp_v"] *= factor
     assert (unstable_reason(FirmwareParams(), gains) is None) == stable
-    params = FirmwareParams(velocity=VelocityLoopGains(kp_a_per_dps=gains["kp_v"]))
+    # The back-EMF check trips a loop ringing between the clamps (the sense is blind half
+    # the time, the model disagrees): out of the way, to watch the ringing itself.
+    params = FirmwareParams(
+        velocity=VelocityLoopGains(kp_a_per_dps=gains["kp_v"]),
+        safety=SafetyParams(sensor_mismatch_deg=1e5),
+    )
     b = make_bench(params)
     b.run(400, {5: [Move(cmd_id=1, target_deg=30.0, v_max_dps=200.0, a_max_dps2=1000.0)]})
     current = b.arr("true_i_a")[250:, 0]

@@ -234,8 +234,11 @@ a_max_dps2 = 148.0
 
 def test_a_trip_disables_the_bridge_and_the_motor_coasts_on_its_diodes(tmp_path):
     """A following-error trip through the whole loop: fault code in the log and on the
-    wire, bridge off, the armature current freewheels to exactly zero and the axis coasts."""
-    body = "[limits]\nfollowing_error_deg = 0.05\n" + MOVE.format(target=360.0)
+    wire, bridge off, the armature current freewheels to exactly zero and the axis coasts
+    (the fault reaction without dynamic braking: brake_s = 0)."""
+    body = "[limits]\nfollowing_error_deg = 0.05\n[safety]\nbrake_s = 0.0\n" + MOVE.format(
+        target=360.0
+    )
     exp = load_experiment(_experiment(tmp_path, body, duration_s=1.5))
     res = run(exp)
     log = res.log

@@ -128,8 +128,10 @@ def test_gate_agrees_with_the_simulator(bench):
     bad = gains.replace(kp_v_a_per_dps=limit * 1.15)
     assert linear.rejection_reasons(bench, ok) == []
     assert "velocity loop unstable" in linear.rejection_reasons(bench, bad)[0]
+    # The firmware's back-EMF check trips a loop ringing between its clamps (the current
+    # sense is blind half the time, the model disagrees): out of the way, to watch the ring.
     hold = Experiment(
-        bench=bench,
+        bench=apply_overrides(bench, {"safety.sensor_mismatch_deg": 1e5}),
         duration_s=0.8,
         commands=(
             ScriptedCommand(
