@@ -703,9 +703,13 @@ class Simulation:
             self._xlog[k] = x
             self._arrays["bus_v"][k] = self.bus_v
         counts = self.encoder.read(x, self._noise_rows)
-        # The AS5048's SPI frames while a fault is injected (None: valid frames).
-        tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
-                           self.uart_tx.free, self.encoder.spi_frames())  # fmt: skip
+        spi = self.encoder.spi_frames()  # None: valid frames (no fault injected)
+        if spi is None:  # (a firmware object of a test may not take the frames)
+            tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
+                               self.uart_tx.free)  # fmt: skip
+        else:
+            tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
+                               self.uart_tx.free, encoder_spi=spi)  # fmt: skip
         if tx:
             self.uart_tx.write(tx)
         t = k * self.dt_s
