@@ -27,12 +27,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "firmware
 from uart_fuzz import fuzz_commands, travel_search  # noqa: E402
 
 
-def _fuzz(n_frames: int, chunk: int) -> None:
+def _fuzz(n_frames: int, chunk: int, first_chunk: int = 0) -> None:
     totals: dict[str, int] = {}
     problems: list[str] = []
     exceptions = 0
     wall0 = time.perf_counter()
-    k = 0
+    k = first_chunk
     sent = 0
     while sent < n_frames:
         n = min(chunk, n_frames - sent)
@@ -55,7 +55,8 @@ def _fuzz(n_frames: int, chunk: int) -> None:
         k += 1
         print(f"  {sent:>9,} frames  {time.perf_counter() - wall0:7.1f} s", flush=True)
     wall = time.perf_counter() - wall0
-    print(f"UART command fuzz: {k} chunks, {wall:.0f} s wall, load {os.getloadavg()[0]:.1f}")
+    print(f"UART command fuzz: chunks {first_chunk}..{k - 1}, {wall:.0f} s wall, "
+          f"load {os.getloadavg()[0]:.1f}")  # fmt: skip
     for key, value in totals.items():
         print(f"  {key:20s} {value:>12,}")
     print(f"  {'exceptions':20s} {exceptions:>12,}")
@@ -64,9 +65,9 @@ def _fuzz(n_frames: int, chunk: int) -> None:
         print("   ", p)
 
 
-def _travel(n_sequences: int) -> None:
+def _travel(n_sequences: int, seed: int = 12345) -> None:
     wall0 = time.perf_counter()
-    report = travel_search(n_sequences, seed=12345)
+    report = travel_search(n_sequences, seed=seed)
     wall = time.perf_counter() - wall0
     print(f"Travel search: {report.sequences:,} sequences, {report.commands:,} commands, "
           f"{report.ticks:,} ticks, {wall:.0f} s wall, load {os.getloadavg()[0]:.1f}")  # fmt: skip
@@ -79,12 +80,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=1_000_000)
     parser.add_argument("--chunk", type=int, default=50_000)
+    parser.add_argument("--first-chunk", type=int, default=0,
+                        help="index (and seed) of the first chunk: runs can be split")  # fmt: skip
     parser.add_argument("--sequences", type=int, default=10_000)
+    parser.add_argument("--travel-seed", type=int, default=12345)
     args = parser.parse_args()
     if args.frames:
-        _fuzz(args.frames, args.chunk)
+        _fuzz(args.frames, args.chunk, args.first_chunk)
     if args.sequences:
-        _travel(args.sequences)
+        _travel(args.sequences, args.travel_seed)
 
 
 if __name__ == "__main__":
