@@ -189,12 +189,15 @@ class Law:
 
     # -- state
     def reset(self, raw_counts: npt.ArrayLike) -> None:
-        """Power-on: the multi-turn count starts at the raw reading, everything at rest.
-        The members share one setpoint: each count starts at its reading unwrapped around
-        member 0's (a reading of 16383 next to 0 is -1, not +1 revolution)."""
+        """Power-on: the multi-turn count starts at the raw reading taken within half a
+        motor turn of zero (``[-8192, 8191]`` counts, +-2.25 deg at the axis: a noisy
+        first reading of 16383 at rest on zero is -1 count, not one motor turn = 4.5 deg
+        away), everything at rest. The members share one setpoint: each count starts at its
+        reading unwrapped around member 0's (16383 next to 0 is -1, not +1 revolution)."""
         raw = np.broadcast_to(np.asarray(raw_counts, dtype=np.int64), (self.n,))
         self.C[:] = 0
-        self.C[C_COUNT] = raw[0] + (raw - raw[0] + HALF_REV) % REV - HALF_REV
+        base = (raw[0] + HALF_REV) % REV - HALF_REV
+        self.C[C_COUNT] = base + (raw - raw[0] + HALF_REV) % REV - HALF_REV
         self.C[C_RAW_PREV] = raw
         self.C[C_BUS_ADC] = self.bus_adc_nominal
         self.S[:] = 0

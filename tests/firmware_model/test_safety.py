@@ -480,3 +480,33 @@ def test_a_current_the_high_side_sense_cannot_see_spans_the_back_emf_speed():
     assert e[0] == 0.0
     assert e[1] == pytest.approx(120.0 * 0.002)
     assert e[2] == pytest.approx(380.0 * 0.002)
+
+
+# ------------------------------------------------------------------ power-up unwrapping
+
+
+@pytest.mark.parametrize("batch", [None, 3])
+def test_a_noisy_first_reading_below_zero_boots_one_count_off_not_one_motor_turn(batch):
+    # Before: the count started at the raw reading, so an axis at rest on the encoder's
+    # zero whose first (noisy) reading was 16383 booted 4.5 deg (one motor turn) away and
+    # the whole run was shifted (Fig. 8 with noise seed 4 and 5).
+    from firmware_model.firmware import Firmware
+    from firmware_model.units import AXIS_DEG_PER_COUNT
+
+    fw = Firmware(FirmwareParams(), batch=batch)
+    first = 16383 if batch is None else np.array([16383, 0, 2])
+    fw.servo_tick(first, b"", 4096)
+    want = np.array([-1, 0, 2])[: 1 if batch is None else 3] * AXIS_DEG_PER_COUNT
+    assert np.allclose(np.atleast_1d(fw.law.pos_deg), want)
+    assert fw.sp_pos_deg == pytest.approx(want[0])
+    # Beyond half a motor turn the reading is the other side of zero.
+    fw = Firmware(FirmwareParams())
+    fw.servo_tick(9000, b"", 4096)
+    assert fw.law.pos_deg[0] == pytest.approx((9000 - 16384) * AXIS_DEG_PER_COUNT)
+
+
+def test_fig8_with_noise_seed_4_boots_where_the_axis_is():
+    from sim.reproduce.experiments import load, with_duration
+
+    log = run(with_duration(load("fig8"), 0.1), seed=4).log
+    assert abs(log.pos_deg[0] - log.true_pos_deg[0]) < 0.01  # was 4.4997 deg
