@@ -59,7 +59,10 @@ def _fig6_start(**overrides):
 def test_k_ilis_spread_scales_the_firmware_s_current():
     # The chip's ratio at 14k (datasheet max at 5 A) against the firmware's 8.5k: the
     # current the firmware takes for x is x * 14000 / 8500 (the "5 A" limit is 8.2 A).
-    log = _fig6_start(**{"current_sense.k_ilis": 14000.0})
+    # The firmware's back-EMF check sees the current 1.65 times off (R * i misses ~4 V at
+    # the clamp) and trips: a miscalibrated sense is a fault it can see. Disarmed here, to
+    # watch what the current loop alone does with the spread.
+    log = _fig6_start(**{"current_sense.k_ilis": 14000.0, "safety.sensor_mismatch_deg": 1e5})
     seen = log.current_meas_a > 0.5  # the forward (visible) current of the acceleration
     np.testing.assert_allclose(
         log.current_a[seen], log.current_meas_a[seen] * 14000.0 / 8500.0, atol=2 * A_PER_LSB
