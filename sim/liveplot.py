@@ -283,6 +283,7 @@ class LiveWindow:
         self._clock = time.monotonic
         self._period_s = 1.0 / fps
         self._next_wall_s = 0.0
+        self.slowest_frame_s = 0.0  # wall time of the slowest frame drawn (a full render)
         self.show = show
         self.closed = False
         figure = None
@@ -313,5 +314,6 @@ class LiveWindow:
         if now >= self._next_wall_s:
             self._next_wall_s = max(now, self._next_wall_s + self._period_s)
             self.plot.draw()
+            self.slowest_frame_s = max(self.slowest_frame_s, self._clock() - now)
         if self.show:
             fig.canvas.flush_events()

@@ -355,6 +355,11 @@ def _move_text(args: argparse.Namespace, target_deg: float) -> str:
     return f"move {target_deg!r} {args.v_max!r} {args.a_max!r} {args.j_max!r} {args.profile}"
 
 
+#: With a live plot, no frame is started when a timed command is due within this many
+#: seconds plus the slowest frame drawn so far.
+DRAW_GUARD_S = 0.05
+
+
 def _timed(client: Any, args: argparse.Namespace, run: Any, live: Any = None) -> None:
     """Listen for ``--duration`` seconds, sending the timed interrupts and stop."""
     import time
@@ -375,8 +380,14 @@ def _timed(client: Any, args: argparse.Namespace, run: Any, live: Any = None) ->
         # with a live plot, receive until the next frame is due, then draw it
         turn_s = 0.05 if live is None else min(0.05, max(0.002, live.due_in_s()))
         client.collect(min(turn_s, max(0.0, next_s - now_wall_s)))
+        # A frame that renders the whole figure (a rescale) takes tens of ms, more on a
+        # loaded machine: none is started when a timed command is due sooner than the
+        # slowest frame so far (plus DRAW_GUARD_S), so the plot does not delay an interrupt
+        # (it pauses instead).
         if live is not None:
-            live.tick()
+            guard_s = DRAW_GUARD_S + live.slowest_frame_s
+            if not events or start_wall_s + events[0][0] - time.monotonic() > guard_s:
+                live.tick()
 
 
 def _interactive(client: Any, status: Any, args: argparse.Namespace, idle: Any = None) -> None:

@@ -116,3 +116,44 @@ def test_bad_plot_options_are_command_errors(argv, message, tmp_path, monkeypatc
     monitor.add_arguments(parser)
     with pytest.raises(CommandError, match=message):
         monitor.main(parser.parse_args(["sim://", *argv]))
+
+
+def test_a_slow_frame_never_delays_a_timed_interrupt(monkeypatch):
+    """monitor --plot --interrupt: a frame that renders the whole figure can take longer
+    than the time left before an interrupt is due (0.3 s here, on a fake clock, so nothing
+    depends on this machine's speed); the monitor starts no frame closer to a timed command
+    than its slowest frame so far, so the interrupt goes out when due (before: up to a
+    frame late; measured at load ~10, an interrupt due at 0.25 s went out after ~1 s)."""
+    import time
+
+    clock = [0.0]
+    monkeypatch.setattr(time, "monotonic", lambda: clock[0])
+
+    class Client:
+        def collect(self, duration_s):
+            clock[0] += max(duration_s, 0.001)
+            return []
+
+    class SlowLive:  # LiveWindow's interface to the monitor's loop
+        frames = 0
+        slowest_frame_s = 0.0
+
+        def due_in_s(self):
+            return 0.0
+
+        def tick(self):
+            self.frames += 1
+            clock[0] += 0.3  # a full render on a loaded machine
+            self.slowest_frame_s = 0.3
+
+    sent = []
+    args = argparse.Namespace(
+        interrupt=[(0.5, -120.0)], stop=None, duration=1.0, v_max=600.0, a_max=1500.0,
+        j_max=None, profile="trapezoid",
+    )  # fmt: skip
+    live = SlowLive()
+    monkeypatch.setattr(monitor, "parse_command", lambda client, text: text)
+    monitor._timed(Client(), args, lambda text, parsed: sent.append((clock[0], text)), live)
+    assert len(sent) == 1 and sent[0][1].startswith("move -120")
+    assert 0.5 <= sent[0][0] < 0.5 + 0.01  # when due, to the loop's resolution
+    assert live.frames >= 2  # frames were drawn before and after it
