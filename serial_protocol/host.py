@@ -155,7 +155,10 @@ class BoardClient:
 
     ``ack_timeout_s`` and ``retries``: see docs/protocol.md, section 5. ``heartbeat_s``:
     while the client waits or collects, it sends a ``Heartbeat`` when nothing was sent for
-    that long (None: a quarter of the board's watchdog time, none if the watchdog is off).
+    that long (None: a quarter of the board's watchdog time, none if the watchdog is off);
+    after a ``jog`` with a timeout it also keeps that jog alive (a heartbeat at least every
+    quarter of its timeout), so the jog runs while this client waits or collects and stops
+    on the board within the timeout once it falls silent (a dead-man's handle).
     ``on_message`` is called with every message that is not the awaited answer (telemetry,
     fault reports, board heartbeats, ...) as it arrives; telemetry is also kept in
     ``telemetry`` (at most ``keep_telemetry`` frames, the oldest dropped first), fault
@@ -191,6 +194,7 @@ class BoardClient:
         self.stats = ClientStats()
         self._cmd_id = 0
         self._heartbeat_s = heartbeat_s
+        self._jog_heartbeat_s: float | None = None  # keeps an accepted jog's timeout fed
         self._last_sent_wall_s = -math.inf
 
     # ------------------------------------------------------------------ session
@@ -485,7 +489,11 @@ class BoardClient:
         """Move at ``vel_dps`` (signed; 0 stops) reached at ``a_max_dps2``, until the next
         jog, a Stop, the travel end or ``timeout_ms`` without a frame (0: no timeout)."""
         msg = Jog(self.next_cmd_id(), vel_dps, a_max_dps2, timeout_ms)
-        return self.command(msg)  # type: ignore[return-value]
+        reply = self.command(msg)
+        if isinstance(reply, Ack):
+            # feed the jog's timeout while this client waits or collects (at least 1 ms apart)
+            self._jog_heartbeat_s = max(timeout_ms / 4000.0, 0.001) if timeout_ms > 0 else None
+        return reply  # type: ignore[return-value]
 
     def wait_status(
         self, done: Callable[[Status], bool], timeout_s: float, interval_s: float = 0.05
@@ -538,8 +546,11 @@ class BoardClient:
                     return msg
 
     def _poll(self, timeout_s: float) -> list[Message | Malformed]:
-        """``link.poll``, with a heartbeat first when the board's watchdog wants one."""
+        """``link.poll``, with a heartbeat first when the board's watchdog (or a jog's
+        timeout) wants one."""
         hb = self._heartbeat_s
+        if self._jog_heartbeat_s is not None:
+            hb = self._jog_heartbeat_s if hb is None else min(hb, self._jog_heartbeat_s)
         if hb is not None and self.session and time.monotonic() - self._last_sent_wall_s >= hb:
             self.heartbeat()
             timeout_s = min(timeout_s, hb)

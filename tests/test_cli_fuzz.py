@@ -65,6 +65,9 @@ GOOD = {
     "speed": ["inf", "100"],
     "duration": ["0.05", "0.1", "0.2"],
     "profile": ["trapezoid", "step"],
+    "jog": ["20", "-50"],
+    "jog_accel": ["500", "148"],
+    "jog_timeout": ["0", "200"],
 }
 SMALL_DURATIONS = ["0.05", "0.1", "0.2", "0", "-1", "nan", "inf", "x"]
 TEXT = ["x", "", "velocity", "current", "position", "trapezoid", "jerk", "a=b", "-", "é", "\x00"]

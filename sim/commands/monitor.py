@@ -17,6 +17,9 @@ from typing import Any
 from serial_protocol import messages as _msg
 from sim.commands._common import integer, number, wire_number
 
+#: --jog's default timeout (ms): the board stops the jog this long after the monitor exits.
+JOG_TIMEOUT_MS = 500
+
 HELP = "talk to a board or to 'serve --pty': send commands, show status, record telemetry CSV"
 
 
@@ -115,6 +118,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--stream-period", type=number(lo=0.0, lo_open=True, hi=60.0), metavar="S",
         help="period between the stream's points (s); overrides the file's",
+    )  # fmt: skip
+    parser.add_argument(
+        "--jog", type=wire_number(_msg.Jog, "vel_dps"), metavar="VEL_DPS",
+        help="jog at this velocity (deg/s, signed) until --stop, the travel end or the "
+        "monitor's exit (the jog's timeout, see --jog-timeout)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--jog-accel", type=wire_number(_msg.Jog, "a_max_dps2"), metavar="A_MAX",
+        help="the jog's acceleration and its braking at a timeout (deg/s^2; default --a-max)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--jog-timeout", type=wire_number(_msg.Jog, "timeout_ms"), default=None, metavar="MS",
+        help=f"the board stops the jog after MS without a frame from this monitor, which "
+        f"sends heartbeats while it listens: the jog stops MS after the monitor exits "
+        f"(default {JOG_TIMEOUT_MS}; 0: never, the jog runs on until a Stop)",
     )  # fmt: skip
     parser.add_argument("--csv", metavar="FILE", help="record the telemetry to this CSV")
     parser.add_argument(
@@ -318,6 +336,22 @@ def _scripted(args: argparse.Namespace) -> list[str]:
         out.append(_move_text(args, args.move))
     import shlex
 
+    if args.jog is not None:
+        if sum(x is not None for x in (args.move, args.program, args.stream)):
+            from serial_protocol.exceptions import CommandError
+
+            raise CommandError(
+                f"--jog {args.jog!r}: not with --move, --program or --stream (one motion)"
+            )
+        a_max = args.a_max if args.jog_accel is None else args.jog_accel
+        timeout = JOG_TIMEOUT_MS if args.jog_timeout is None else args.jog_timeout
+        out.append(f"jog {args.jog!r} {a_max!r} {timeout}")
+    else:
+        for name, value in (("--jog-accel", args.jog_accel), ("--jog-timeout", args.jog_timeout)):
+            if value is not None:
+                from serial_protocol.exceptions import CommandError
+
+                raise CommandError(f"{name} {value!r}: only with --jog VEL_DPS")
     if args.program:
         out.append(f"program {shlex.quote(args.program)}")
     if args.stream:

@@ -115,6 +115,62 @@ def test_a_jog_over_the_uart_stops_when_the_client_falls_silent():
     assert st.state is State.HOLDING and 15.0 < st.pos_deg < 30.0
 
 
+def test_the_client_keeps_its_jog_alive_while_it_listens(monkeypatch):
+    """A jog with a timeout runs as long as the client waits or collects (its heartbeats
+    feed the timeout), and stops once the client falls silent. The client's clock is the
+    board's simulated time here, so no wall-clock speed enters the test."""
+    import types
+
+    import serial_protocol.host as host
+
+    sim, c = client()
+    clock = types.SimpleNamespace(monotonic=lambda: sim.tick * sim.dt_s, sleep=lambda s: None)
+    monkeypatch.setattr(host, "time", clock)
+    c.set_enable(True)
+    assert isinstance(c.jog(40.0, 400.0, timeout_ms=100), Ack)
+    c.collect(1.0)  # ten times the timeout
+    assert sim.fw.counters["jog_timeouts"] == 0
+    assert sim.fw.sp_vel_dps == pytest.approx(40.0)
+    assert c.stats.heartbeats_sent >= 30  # one at least every 25 ms of the second
+    sim.step(200)  # silent: the jog times out and brakes at its a_max
+    assert sim.fw.counters["jog_timeouts"] == 1
+    assert sim.fw.sp_vel_dps == 0.0 and sim.fw.fault == 0
+
+
+def test_monitor_jogs_a_simulated_board_and_stops_it(tmp_path, capsys):
+    """``monitor --jog``: the jog at its acceleration in the recorded telemetry, ended by
+    ``--stop``; bad values are one line and status 2 before anything is sent."""
+    import csv
+
+    from sim import cli
+
+    out = tmp_path / "jog.csv"
+    argv = ["monitor", "sim://", "--jog", "-30", "--jog-accel", "1000", "--stop", "0.4",
+            "--duration", "0.8", "--quiet", "--ack-timeout", "2", "--csv", str(out)]  # fmt: skip
+    assert cli.main(argv) == 0
+    said = capsys.readouterr().out
+    assert "-> jog -30.0 1000.0 500: ok" in said and "-> stop: ok" in said
+    with open(out, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    sp_v = np.array([float(r["sp_vel_dps"]) for r in rows])
+    assert sp_v.min() == -30.0 and sp_v.max() <= 0.0  # reached, never beyond
+    ticks = np.array([int(r["tick"]) for r in rows])  # a loaded host may miss a frame
+    ramp = np.abs(np.diff(sp_v)) / np.diff(ticks)
+    reached = int(np.argmax(sp_v == -30.0))
+    assert np.max(ramp[:reached]) == pytest.approx(1000.0 * 0.002)  # the jog's a_max
+    assert np.max(ramp) <= 2000.0 * 0.002 + 1e-4  # the Stop brakes at the board's a_max
+    assert sp_v[-1] == 0.0 and rows[-1]["state"] == "HOLDING"
+    for bad, message in [
+        (["--jog", "nan"], "argument --jog: 'nan': must be a finite number"),
+        (["--jog", "5", "--jog-timeout", "70000"], "'70000': does not fit the wire"),
+        (["--jog-timeout", "100"], "--jog-timeout 100: only with --jog VEL_DPS"),
+        (["--jog", "5", "--move", "10"], "--jog 5.0: not with --move, --program or --stream"),
+    ]:
+        assert cli.main(["monitor", "socket://127.0.0.1:9", *bad]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_a_program_a_stream_and_a_jog_through_a_real_serve_tcp():
     """The same through ``turntable-sim serve --tcp`` (a real socket, the server's own
     pacing, 4x real time): a program, seed 002's Table 1 streamed (all points held before
