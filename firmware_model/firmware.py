@@ -131,8 +131,6 @@ _MUTATING = (
 MIN_POSITIVE = 1e-3
 #: Longest dwell of a program block (s).
 MAX_DWELL_S = 3600.0
-#: A jog stops this far inside the travel end (deg).
-_JOG_END_MARGIN_DEG = 1e-6
 #: Smallest receive ring of the board (bytes per servo tick); at high baud rates the ring
 #: holds two ticks' worth of the line. More in one tick is lost and counted.
 RX_BUFFER_BYTES = 256
@@ -1219,10 +1217,8 @@ class Firmware:
             if m.vel_dps == 0.0:
                 profile = planner.stop(t_s, a_max=a_max, kind="trapezoid")
             else:
-                # a move to the travel end at |vel|: the stop there is planned with it (1e-6
-                # deg inside, below the wire's step: the plan's rounding stays in the travel)
-                end = lim.travel_max_deg - _JOG_END_MARGIN_DEG if m.vel_dps > 0.0 else (
-                    lim.travel_min_deg + _JOG_END_MARGIN_DEG)  # fmt: skip
+                # a move to the travel end at |vel|: the stop there is planned with it
+                end = lim.travel_max_deg if m.vel_dps > 0.0 else lim.travel_min_deg
                 profile = planner.command(t_s, end, v_max=abs(m.vel_dps), a_max=a_max,
                                           kind="trapezoid")  # fmt: skip
         except ValueError:
@@ -1268,13 +1264,10 @@ class Firmware:
 
     def _travel_refusal(self, profile: Any, field: str | None) -> _Refusal | None:
         """``NackCode.TRAVEL`` naming ``field`` and the travel end ``profile`` would cross
-        (``safety.travel_refusal``), or None if it stays within the travel."""
+        (``safety.travel_end_crossed``), or None if it stays within the travel."""
         lim = self.params.limits
-        if not safety.travel_refusal(profile, lim.travel_min_deg, lim.travel_max_deg):
-            return None
-        _, hi = safety.profile_extent(profile)
-        end = lim.travel_max_deg if hi > max(lim.travel_max_deg, profile.p0) else lim.travel_min_deg
-        return NackCode.TRAVEL, field, end
+        end = safety.travel_end_crossed(profile, lim.travel_min_deg, lim.travel_max_deg)
+        return None if end is None else (NackCode.TRAVEL, field, end)
 
     def _cmd_set_gains(self, m: SetGains) -> _Refusal | None:
         loop = Loop(m.loop)

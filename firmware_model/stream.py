@@ -216,8 +216,8 @@ class PointStream:
                     return NackCode.TOO_LOW, pos_f, lo
             p_prev, v_prev = p, v
         trial = self._profile_with(points, t_s)
-        if trial is not None and safety.travel_refusal(trial[0], lo_t, hi_t):
-            end = hi_t if safety.profile_extent(trial[0])[1] > hi_t else lo_t
+        end = None if trial is None else safety.travel_end_crossed(trial[0], lo_t, hi_t)
+        if end is not None:
             return NackCode.TRAVEL, f"pos{n - 1}_deg", end
         return None
 
