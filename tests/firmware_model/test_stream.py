@@ -257,6 +257,22 @@ def test_a_jog_stops_when_the_pc_falls_silent(make_bench):
     assert b.fw.fault == 0  # a stop, not a fault
 
 
+def test_the_board_watchdog_trips_during_a_jog_without_timeout(make_bench):
+    """A jog with no timeout of its own is still under the board's command watchdog
+    ([safety] watchdog_s): the PC silent for 0.1 s trips WATCHDOG, the bridge brakes and
+    goes off, the setpoint stops where the axis is."""
+    from firmware_model.params import SafetyParams
+    from serial_protocol.messages import Fault, FaultReport, State
+
+    b = make_bench(FirmwareParams(safety=SafetyParams(watchdog_s=0.1)))
+    b.run(200, {5: [Jog(1, 60.0, 1000.0)]})
+    (report,) = b.replies(FaultReport)
+    assert report.fault is Fault.WATCHDOG and report.tick == 5 + 51
+    assert b.arr("sp_vel_dps")[report.tick - 1] == pytest.approx(60.0)  # jogging until then
+    assert b.arr("state")[-1] == State.FAULT and np.all(b.arr("duty")[report.tick + 1 :] == 0.0)
+    assert b.fw.counters["jog_timeouts"] == 0
+
+
 def test_a_jog_stops_at_the_travel_end(make_bench):
     params = FirmwareParams(limits=LimitsParams(travel_min_deg=-5.0, travel_max_deg=5.0))
     b = make_bench(params)

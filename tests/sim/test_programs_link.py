@@ -67,3 +67,24 @@ def c_text(nack: Nack) -> str:
     from serial_protocol.host import nack_text
 
     return nack_text(nack)
+
+
+def test_the_board_heartbeat_carries_the_free_queue_slots():
+    """Flow control without asking (#14 §1): every ``BoardHeartbeat`` says how many blocks
+    the queue can take now; it follows the queue as it fills and as blocks finish."""
+    sim, c = client()
+    c.set_enable(True)
+
+    def next_heartbeat():
+        c.last_heartbeat = None
+        hb = c.wait_for(lambda m: type(m).__name__ == "BoardHeartbeat", timeout_s=60.0)
+        assert hb is not None
+        return hb
+
+    assert next_heartbeat().queue_free == QUEUE_CAPACITY
+    # slow blocks (a 1 deg/s crawl): none finishes before the next heartbeat
+    for k in range(5):
+        assert isinstance(c.queue_segment(0.5 * (k + 1), 1.0), QueueStatus)
+    assert next_heartbeat().queue_free == QUEUE_CAPACITY - 5
+    c.abort()
+    assert next_heartbeat().queue_free == QUEUE_CAPACITY

@@ -178,6 +178,33 @@ def test_lookahead_passes_waypoints_at_speed_and_saves_time(output):
             assert v_meas < 0.05 * la.v_max_dps
 
 
+def test_the_inspection_scan_runs_through_the_board_queue_as_planned(output):
+    """Issue #14 §3 (run as written, also under --quick): the board's queue passes every
+    junction at the PC-side plan's speed (its setpoint within one tick of it), rests where
+    the plan does, ends when the plan says, sooner than stopping at every waypoint; seed
+    002's tables streamed as PVT points come back in the telemetry."""
+    pg = output.inputs.programs
+    assert not (pg.queue.nacks or pg.stop_each.nacks or pg.stream.nacks)
+    step = 500.0 * 0.002  # a_max x one tick
+    rows = zip(pg.planned_junction_dps, pg.board_junction_dps, pg.measured_junction_dps,
+               strict=True)  # fmt: skip
+    kinds = set()
+    for v_plan, v_board, v_meas in rows:
+        kinds.add(v_plan > 0.0)
+        if v_plan > 0.0:  # passed at speed
+            assert v_board == pytest.approx(v_plan, abs=step)
+            assert v_meas == pytest.approx(v_plan, abs=0.1 * v_plan)
+        else:  # a reversal: at rest between two ticks
+            assert v_board <= np.sqrt(2.0) * step + 1e-9 and v_meas < 2.0
+    assert kinds == {True, False}
+    assert pg.done_queue_s == pytest.approx(pg.plan_s, abs=3 * 0.002)
+    assert pg.plan_s < pg.plan_stop_each_s and pg.done_queue_s < pg.done_stop_each_s
+    assert pg.max_err_queue_deg < 0.5
+    for table in pg.tables:
+        d_sp, _, d_pos, _ = table.max_bench_diff()
+        assert d_sp <= 1e-4 and d_pos < 0.1
+
+
 def test_seed002_tables_run_on_the_bench_as_planned(output):
     for table in output.inputs.seed002.tables:
         d_sp, _, d_pos, _ = table.max_bench_diff()
