@@ -294,6 +294,12 @@ class LiveWindow:
             figure.canvas.manager.set_window_title(title or "turntable-sim monitor")
             plt.show(block=False)
         self.plot = LivePlot(buffer, window_s, figure, title)
+        # The first frame renders the whole figure (and loads the fonts): done here, before
+        # any command is sent, and timed, so that the monitor knows what a frame can cost
+        # before it schedules one near a timed command.
+        start = self._clock()
+        self.plot.draw()
+        self.slowest_frame_s = self._clock() - start
 
     def due_in_s(self) -> float:
         """Wall seconds until the next frame is due (0 when it is)."""
