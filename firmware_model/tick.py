@@ -217,7 +217,7 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
     return trip
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def state_of(j, fi, enabled, fault):
     """The ``State`` code of member ``j``."""
     if fault[j]:
@@ -267,7 +267,7 @@ _FIELD_LO = np.array([float(_SAT.get(n, (1.0, 0, 0))[1]) for n in _NAMES])
 _FIELD_HI = np.array([float(_SAT.get(n, (1.0, 0, 0))[2]) for n in _NAMES])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _put(out, at, value, size):
     for b in range(size):
         out[at + b] = (value >> (8 * b)) & 0xFF

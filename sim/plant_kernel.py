@@ -62,7 +62,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     return np.array(values)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def key(i, w, tw, wp, duty, enable, kc):
     """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
     power-flow modes)."""
@@ -184,7 +184,7 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through

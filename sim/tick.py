@@ -119,6 +119,9 @@ def run_ticks(
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
     keys, group, slots, phis, rates, consts, levels, budget, bus = plant
     xlog, signals, voltage, bus_log = logs
+    # The log columns as locals: an array taken from a tuple inside the member loop would
+    # cost a reference count increment and decrement per member and column.
+    sig0, sig1, sig2, sig3, sig4, sig5, sig6, sig7, sig8, sig9, sig10 = signals
     bus_v = bus[0]
     latency, offset, enc_noise, counts_per_rad, counts_per_rev, enc_inl = enc_params
     a_per_lsb, adc_noise, sense_table = adc_params
@@ -254,17 +257,17 @@ def run_ticks(
         if keep:
             sp_pos, sp_vel, sp_acc = fs[FS_SP_POS], fs[FS_SP_VEL], fs[FS_SP_ACC]
             for j in range(n):
-                signals[0][k, j] = sp_pos
-                signals[1][k, j] = sp_vel
-                signals[2][k, j] = sp_acc
-                signals[3][k, j] = P[P_POS, j]
-                signals[4][k, j] = P[P_VEL, j]
-                signals[5][k, j] = P[P_VEL_RAW, j]
-                signals[6][k, j] = P[P_IMEAS, j]
-                signals[7][k, j] = P[P_IREF, j]
-                signals[8][k, j] = P[P_DUTY, j]
-                signals[9][k, j] = state_of(j, fi, enabled, fault)
-                signals[10][k, j] = fault[j]
+                sig0[k, j] = sp_pos
+                sig1[k, j] = sp_vel
+                sig2[k, j] = sp_acc
+                sig3[k, j] = P[P_POS, j]
+                sig4[k, j] = P[P_VEL, j]
+                sig5[k, j] = P[P_VEL_RAW, j]
+                sig6[k, j] = P[P_IMEAS, j]
+                sig7[k, j] = P[P_IREF, j]
+                sig8[k, j] = P[P_DUTY, j]
+                sig9[k, j] = state_of(j, fi, enabled, fault)
+                sig10[k, j] = fault[j]
                 voltage[k, j] = volt[j]
         shifted, credit[0] = _pace(credit[0], dt_s, bps, ctx[CX_PENDING])
         ctx[CX_PENDING] -= shifted

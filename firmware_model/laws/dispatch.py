@@ -31,13 +31,13 @@ def _law(S):  # noqa: N803
     return fixed_q if isinstance(S.dtype, types.Integer) else float64
 
 
-@overload(estimate)
+@overload(estimate, inline="always")
 def _estimate(raw, P, C, S, G, K):  # noqa: N803
     step = _law(S).estimate
     return lambda raw, P, C, S, G, K: step(raw, P, C, S, G, K)
 
 
-@overload(servo)
+@overload(servo, inline="always")
 def _servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, G, K):  # noqa: N803
     step = _law(S).servo
     return lambda sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, G, K: step(
@@ -45,7 +45,7 @@ def _servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S,
     )
 
 
-@overload(current)
+@overload(current, inline="always")
 def _current(adc, enabled, P, C, S, G, K):  # noqa: N803
     step = _law(S).current
     return lambda adc, enabled, P, C, S, G, K: step(adc, enabled, P, C, S, G, K)
