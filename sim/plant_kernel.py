@@ -62,7 +62,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     return np.array(values)
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, error_model="numpy")
 def key(i, w, tw, wp, duty, enable, kc):
     """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
     power-flow modes)."""
@@ -184,7 +184,7 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
-@numba.njit(cache=True, error_model="numpy", inline="always")
+@numba.njit(cache=True, error_model="numpy")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
@@ -321,6 +321,13 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
     return ni, np_, nw, ntw, nwp
 
 
+# The member loop's copies of key and _excursion, inlined into it (numba IR): a call with
+# array arguments costs a reference count increment and decrement per array, which was a
+# third of a member's step. One source; step (the rare path) calls the plain ones.
+_key_inline = numba.njit(cache=True, error_model="numpy", inline="always")(key.py_func)
+_excursion_inline = numba.njit(cache=True, error_model="numpy", inline="always")(_excursion.py_func)
+
+
 @numba.njit(cache=True, error_model="numpy")
 def step(
     i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
@@ -432,17 +439,19 @@ def step_members(
         if known and en and -icl < i < icl:
             k0 = keys_in[j]
         else:
-            k0 = key(i, w, tw, wp, d, en, kc)
+            k0 = _key_inline(i, w, tw, wp, d, en, kc)
         # The common case first, without step's sub-step stack: the whole step in the start
         # mode ends in it and leaves it nowhere in between (exactly step's first pass).
         row = sl[k0]
         if row >= 0 and levels > 0 and budget > 0:
             ni, np_, nw, ntw, nwp = _advance(phis, row, 0, i, p, w, tw, wp, d)
-            k1 = key(ni, nw, ntw, nwp, d, en, kc)
+            k1 = _key_inline(ni, nw, ntw, nwp, d, en, kc)
             if k1 == k0:
                 bridge_on = k0 // _MECH == _B_ON
                 if not (bridge_on and -icl <= i <= icl and (ni > icl or ni < -icl)) and not (
-                    _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc)
+                    _excursion_inline(
+                        i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc
+                    )
                 ):
                     out_x[j, 0] = ni
                     out_x[j, 1] = np_

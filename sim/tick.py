@@ -147,11 +147,14 @@ def run_ticks(
                 draw = enc_block[ctx[CX_ENC_ROW]]
                 ctx[CX_ENC_ROW] += 1
             if keep:
-                xlog[k] = x
-                if bus_v.shape[0]:
-                    bus_log[k] = bus_v
-                else:
-                    bus_log[k] = supply_v
+                # Element loops, not slice assignments: those compile numba's shape-error
+                # formatting (a tenth of the whole compile time) for an error that cannot
+                # happen here.
+                bus_src = bus_v if bus_v.shape[0] else supply_v
+                for j in range(n):
+                    for q in range(5):
+                        xlog[k, j, q] = x[j, q]
+                    bus_log[k, j] = bus_src[j]
             _read(
                 x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
             )
@@ -225,7 +228,8 @@ def run_ticks(
                     ctx[CX_ADC_ROW] += 1
                 read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc, pwm)
                 read_bus_adc(bus, supply_v, adc_full, C[C_BUS_ADC])
-                en_now[:] = enabled
+                for j in range(n):
+                    en_now[j] = enabled[j]
                 stage = BRIDGE
                 if current_stage(adc, en_now, P, C, S, G, K, fs, fi, oc_ticks):
                     ctx[CX_STAGE] = BRIDGE
