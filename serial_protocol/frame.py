@@ -981,6 +981,7 @@ class Decoder:
         i = 0
         t8 = _T8
         append = out.append
+        window = _BULK_MIN_BYTES * 4
         while True:
             j = buf.find(SYNC, i)
             if j < 0:
@@ -994,6 +995,16 @@ class Decoder:
                 self.bytes_dropped += j - i
                 self._hunting = True
                 i = j
+            if offsets is not None and n - i >= _BULK_MIN_BYTES:
+                # Many well-formed frames at once (feed_columns): the same checks and
+                # counters as below; what it does not take, the loop below does.
+                starts, lengths, after = _bulk_frames(buf, i, min(n, i + window))
+                if after > i:
+                    self._take_bulk(buf, starts, lengths, out, offsets)
+                    window = min(_BULK_MAX_BYTES, 2 * (after - i) + _BULK_MIN_BYTES)
+                    i = after
+                    continue
+                window = _BULK_MIN_BYTES
             if n - i < HEADER_BYTES:
                 return i
             length = buf[i + 2]
@@ -1045,6 +1056,48 @@ class Decoder:
             append(self._decode(msg_type, seq, buf, i + HEADER_BYTES, length))
             i = end
 
+    def _take_bulk(
+        self,
+        buf: bytearray,
+        starts: np.ndarray,
+        lengths: np.ndarray,
+        out: list[Message | Malformed],
+        offsets: list[int],
+    ) -> None:
+        """Count and decode the frames ``_bulk_frames`` accepted (good CRC each), as the
+        scan does one by one: sequence gaps, telemetry payload offsets into ``offsets``,
+        every other message (or a telemetry frame with an unknown state or fault code)
+        decoded into ``out`` in stream order."""
+        k = starts.shape[0]
+        self.frames += k
+        if self._hunting:
+            self.resyncs += 1
+            self._hunting = False
+        raw = np.frombuffer(buf, dtype=np.uint8)
+        seqs = raw[starts + 4].astype(np.int64)
+        types = raw[starts + 3]
+        prev = np.empty(k, dtype=np.int64)
+        prev[1:] = seqs[:-1]
+        first = 1
+        if self.last_seq is not None:
+            prev[0] = self.last_seq
+            first = 0
+        missed = (seqs[first:] - prev[first:] - 1) & 0xFF
+        gaps = missed != 0
+        self.seq_gaps += int(gaps.sum())
+        self.frames_missed += int(missed.sum())
+        self.last_seq = int(seqs[-1])
+        tel = (types == _TELEMETRY_TYPE) & (lengths >= _TELEMETRY_LEN)
+        at = starts[tel]
+        tel[tel] = _STATE_OK[raw[at + _STATE_AT]] & _FAULT_OK[raw[at + _FAULT_AT]]
+        del raw  # the view: buf must not stay exported (the caller trims it)
+        offsets.extend((starts[tel] + HEADER_BYTES).tolist())
+        if not tel.all():
+            append = out.append
+            for q in np.flatnonzero(~tel).tolist():
+                s = int(starts[q])
+                append(self._decode(buf[s + 3], buf[s + 4], buf, s + HEADER_BYTES, int(lengths[q])))
+
     def _decode(
         self, msg_type: int, seq: int, buf: bytearray, start: int, length: int
     ) -> Message | Malformed:
@@ -1073,6 +1126,99 @@ _TELEMETRY_COLUMNS = (
     ("current_a", "current", CURRENT_SCALE),
     ("duty", "duty", DUTY_SCALE),
 )
+
+
+# ---------------------------------------------------------------- bulk decode (feed_columns)
+# A recorded run's stream is well-formed frames back to back: feed_columns checks many at
+# once with numpy and leaves the frame-by-frame scan (Decoder._scan) to do what the bulk
+# pass does not take: the first frame that is not well formed with a good CRC, and from
+# there on. The checks, counters and messages are the scan's (a test compares the two).
+_BULK_MIN_BYTES = 2048  # below this the frame-by-frame scan is as fast
+_BULK_MAX_BYTES = 1 << 20  # at most this much per bulk pass
+_T8_NP = np.frombuffer(_T8, dtype=np.uint8)
+# Whether a state / fault code byte decodes (the scan's ``in _STATE`` / ``in _FAULT``).
+_STATE_OK = np.array([code in _STATE for code in range(256)])
+_FAULT_OK = np.array([code in _FAULT for code in range(256)])
+_CRC_TABLES: list[tuple[int, np.ndarray]] = []
+
+
+def _crc32_tables() -> tuple[int, np.ndarray]:
+    """``zlib.crc32`` of a telemetry frame's checked bytes (length byte to the payload's
+    end), ``size`` bytes ``m``, as ``zero ^ XOR_p table[p, m[p]]``: CRC-32 is affine in the
+    message's bits (``zero``: the CRC of ``size`` zeros), so each byte position contributes
+    its own entry, itself the XOR of the entries of its set bits. Built on first use."""
+    if not _CRC_TABLES:
+        size = TELEMETRY_FRAME_BYTES - 2 - CRC_BYTES
+        zero = _zlib_crc32(bytes(size))
+        basis = np.empty((size, 8), dtype=np.uint32)
+        for p in range(size):
+            for bit in range(8):
+                msg = bytearray(size)
+                msg[p] = 1 << bit
+                basis[p, bit] = _zlib_crc32(msg) ^ zero
+        bits = ((np.arange(256)[:, None] >> np.arange(8)) & 1).astype(bool)  # (256, 8)
+        table = np.bitwise_xor.reduce(np.where(bits[None], basis[:, None, :], 0), axis=2)
+        _CRC_TABLES.append((zero, table.astype(np.uint32)))
+    return _CRC_TABLES[0]
+
+
+def _bulk_frames(buf: bytearray, i: int, n: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The frames back to back from ``buf[i]`` (a sync there) that the scan would accept
+    one after the other (header check, length, whole frame present, CRC): their start
+    offsets and payload lengths, and the index after the last. Stops before the first
+    that fails, or where another candidate does not start at the previous one's end."""
+    none = np.empty(0, dtype=np.intp)
+    # The first frame as the scan checks it, before any work on the window: after a
+    # damaged frame the scan moves on byte by byte, each step costs only this.
+    if n - i < HEADER_BYTES:
+        return none, none, i
+    length0 = buf[i + 2]
+    head = _T8[_T8[_T8[length0] ^ buf[i + 3]] ^ buf[i + 4]]
+    if length0 > MAX_PAYLOAD_BYTES or head != buf[i + 5]:
+        return none, none, i
+    end0 = i + OVERHEAD_BYTES + length0
+    if end0 > n:
+        return none, none, i
+    if _zlib_crc32(buf[i + 2 : end0 - 4]) != int.from_bytes(buf[end0 - 4 : end0], "little"):
+        return none, none, i
+    w = np.frombuffer(buf, dtype=np.uint8, count=n)[i:]
+    size = w.shape[0]
+    c = np.flatnonzero((w[:-1] == 0xA5) & (w[1:] == 0x5A))
+    c = c[c + HEADER_BYTES <= size]
+    length = w[c + 2]
+    head_ok = _T8_NP[_T8_NP[_T8_NP[length] ^ w[c + 3]] ^ w[c + 4]] == w[c + 5]
+    keep = head_ok & (length <= MAX_PAYLOAD_BYTES)
+    c, length = c[keep], length[keep].astype(np.intp)
+    end = c + OVERHEAD_BYTES + length
+    # The chain from i: each frame starts where the last ended, and is whole in the window.
+    chained = np.ones(c.shape[0], dtype=bool)
+    chained[1:] = c[1:] == end[:-1]
+    chained &= end <= size
+    if c.shape[0] == 0 or c[0] != 0:  # cannot happen: the first frame passed
+        return none, none, i
+    k = c.shape[0] if chained.all() else int(np.argmin(chained))
+    c, length, end = c[:k], length[:k], end[:k]
+    # CRC: the telemetry frames' at once, the others' one by one.
+    good = np.ones(k, dtype=bool)
+    tel = length == _TELEMETRY_LEN
+    if tel.any():
+        zero, table = _crc32_tables()
+        at = c[tel]
+        rows = w[at[:, None] + np.arange(2, TELEMETRY_FRAME_BYTES)]
+        crc = np.full(at.shape[0], zero, dtype=np.uint32)
+        checked = TELEMETRY_FRAME_BYTES - 2 - CRC_BYTES
+        for p in range(checked):
+            crc ^= table[p][rows[:, p]]
+        stored = rows[:, checked:].copy().view("<u4").reshape(-1)
+        good[tel] = crc == stored
+    for q in np.flatnonzero(~tel).tolist():
+        s, e = i + int(c[q]), i + int(end[q])
+        good[q] = _zlib_crc32(buf[s + 2 : e - 4]) == int.from_bytes(buf[e - 4 : e], "little")
+    del w  # the view: buf must not stay exported (the caller trims it)
+    k = k if good.all() else int(np.argmin(good))
+    if k == 0:
+        return none, none, i
+    return c[:k] + i, length[:k], i + int(end[k - 1])
 
 
 def _telemetry_columns(buf: bytearray, offsets: list[int]) -> dict[str, np.ndarray]:
