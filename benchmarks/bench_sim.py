@@ -3,7 +3,8 @@
 Paired against a reference tree (``--ref``, e.g. a checkout of the commit before issue 12),
 each measurement alternating between the two trees in fresh interpreters, round after
 round, so that both see the same machine load; the table gives the medians over the rounds
-and the median of the per-round ratios. All runs use the full firmware model on
+and the median of the per-round ratios, in wall time and again in CPU time (user + sys of
+the process, which a loaded machine disturbs far less). All runs use the full firmware model on
 ``bench_configs/paper_bench.toml`` driven by the paper's Fig. 8 script (``fig8.toml``, cut
 to the simulated time given), encoder noise on, telemetry framed every tick and decoded by
 the simulated PC (``RunResult.telemetry_arrays``):
@@ -21,6 +22,7 @@ the simulated PC (``RunResult.telemetry_arrays``):
 Usage::
 
     python3 benchmarks/bench_sim.py --ref /tmp/ref_tree [--rounds 3] [--skip-commands]
+    python3 benchmarks/bench_sim.py --ref /tmp/ref_tree --paired-only   # 1 and 2 only
 """
 
 from __future__ import annotations
@@ -155,20 +157,27 @@ def plant_only(exp: Experiment, seconds: float) -> dict[str, float]:
 
 
 _MEASURE = r"""
-import dataclasses, json, statistics, sys, time, warnings
+import dataclasses, json, resource, statistics, sys, time, warnings
 warnings.simplefilter("ignore")
 sys.path.insert(0, {tree!r})
 from pathlib import Path
 from sim.config import load_experiment
 from sim.loop import run
 fig8 = load_experiment(Path({tree!r}) / "bench_configs" / "fig8.toml")
+CPU = {cpu!r}
+def clock():
+    if CPU:  # user + sys of this process: what the machine's load disturbs least
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+    return time.perf_counter()
 def timed(exp, batch=None, overrides=None, repeat=3):
     walls = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         res = run(exp, batch=batch, overrides=overrides)
         res.telemetry_arrays()
-        walls.append(time.perf_counter() - t0)
+        walls.append(clock() - t0)
+        del res
     return statistics.median(walls)
 one = dataclasses.replace(fig8, duration_s=20.0)
 short = dataclasses.replace(fig8, duration_s={batch_s!r})
@@ -210,12 +219,16 @@ def _load() -> str:
     return "load average " + " ".join(f"{v:.1f}" for v in os.getloadavg())
 
 
-def paired(trees: dict[str, str], rounds: int, batch: int, batch_s: float) -> None:
-    """Measurements 1 and 2, alternating between the trees round after round."""
+def paired(
+    trees: dict[str, str], rounds: int, batch: int, batch_s: float, cpu: bool = False
+) -> None:
+    """Measurements 1 and 2, alternating between the trees round after round; ``cpu``:
+    times are the process's user + sys CPU time instead of wall time."""
     results: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
     for r in range(rounds):
         for name, tree in trees.items():
-            results[name].append(_python(_MEASURE.format(tree=tree, batch=batch, batch_s=batch_s)))
+            code = _MEASURE.format(tree=tree, batch=batch, batch_s=batch_s, cpu=cpu)
+            results[name].append(_python(code))
         print(f"    round {r + 1}/{rounds} done ({_load()})", flush=True)
     ticks = batch * round(batch_s / 0.002)
 
@@ -328,13 +341,18 @@ def main() -> None:
     ap.add_argument("--batch-s", type=float, default=2.0, help="simulated s of the batch run")
     ap.add_argument("--cmd-repeat", type=int, default=3)
     ap.add_argument("--skip-commands", action="store_true")
+    ap.add_argument("--paired-only", action="store_true", help="measurements 1 and 2 only")
     ap.add_argument("--serve-hours", type=float, default=1.0)
     ap.add_argument("--ivp-s", type=float, default=1.0, help="simulated s of the ivp loop")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
     trees = {"reference": args.ref, "this tree": here} if args.ref else {"this tree": here}
-    print(f"[1, 2] paired runs, {args.rounds} rounds ({_load()} at the start)")
+    print(f"[1, 2] paired runs, {args.rounds} rounds, wall clock ({_load()} at the start)")
     paired(trees, args.rounds, args.batch, args.batch_s)
+    print(f"[1, 2] the same in CPU time (user + sys) ({_load()} at the start)")
+    paired(trees, args.rounds, args.batch, args.batch_s, cpu=True)
+    if args.paired_only:
+        return
     print("[3]")
     fresh_process(here, 3)
     if not args.skip_commands:
