@@ -47,7 +47,8 @@ __all__ = [
 #: How far beyond a travel end a planned trajectory may reach and still count as within it
 #: (deg; docs/protocol.md, NACK TRAVEL). It absorbs only the float64 rounding of a profile
 #: evaluated in closed form: a move planned to end exactly at a travel end, interrupting
-#: a motion, evaluated 1.4e-17 to 2.9e-11 deg beyond it in 87 of 300 random such moves
+#: a motion, evaluated 1.4e-17 to 2.9e-11 deg beyond it in 87 of the 600 trajectories of
+#: 300 random pairs of a move and an interrupt to a travel end
 #: (travel ends 0.1 to 1e5 deg). 1e-6 deg is far above that rounding and 100 times below
 #: the wire's 1e-4 deg step, so no target the wire can carry gets through because of it.
 #: The targets themselves are range-checked exactly.
