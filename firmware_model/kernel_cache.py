@@ -16,20 +16,32 @@ from pathlib import Path
 __all__ = ["KERNEL_SOURCES", "check"]
 
 _ROOT = Path(__file__).resolve().parents[1]
-#: Every source file with compiled kernels or constants frozen into them (repo-relative).
+#: Every source file with compiled kernels or constants frozen into them (repo-relative):
+#: every project module ``sim/tick.py`` imports, directly or through others (frame layout
+#: and CRC tables, message enums, parameter tables, the profile's phase arrays...).
+#: ``tests/firmware_model/test_kernel_cache.py`` derives that set from the imports and fails
+#: when a module is missing here.
 KERNEL_SOURCES = (
     "firmware_model/as5048.py",
     "firmware_model/fixedpoint.py",
     "firmware_model/laws/dispatch.py",
     "firmware_model/laws/fixed_q.py",
     "firmware_model/laws/float64.py",
+    "firmware_model/laws/law.py",
     "firmware_model/laws/layout.py",
+    "firmware_model/params.py",
     "firmware_model/safety.py",
     "firmware_model/tick.py",
     "firmware_model/units.py",
+    "planner/profile.py",
+    "serial_protocol/frame.py",
+    "serial_protocol/messages.py",
     "serial_protocol/uart.py",
     "sim/bridge.py",
+    "sim/drivetrain.py",
     "sim/encoder.py",
+    "sim/motor.py",
+    "sim/params.py",
     "sim/plant.py",
     "sim/plant_kernel.py",
     "sim/supply.py",

@@ -1,0 +1,68 @@
+"""The kernel cache's list of sources covers every module the compiled tick is built from.
+
+Numba keys a cached kernel on its own file only, so ``kernel_cache.KERNEL_SOURCES`` must name
+every project module whose code or constants can end up in ``sim/tick.py``'s compiled run: a
+module left out would, once changed, be served from stale machine code. The set is derived
+here from the import statements (``ast``), not kept by hand.
+"""
+
+import ast
+from pathlib import Path
+
+from firmware_model import kernel_cache
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = {"firmware_model", "sim", "serial_protocol", "planner"}
+# Modules that hold no kernel code and no constant a kernel could freeze.
+NOT_KERNEL = {"firmware_model/kernel_cache.py"}
+
+
+def _module_file(name: str) -> Path | None:
+    for path in (
+        ROOT / (name.replace(".", "/") + ".py"),
+        ROOT / name.replace(".", "/") / "__init__.py",
+    ):
+        if path.exists():
+            return path
+    return None
+
+
+def _project_imports(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return {n for n in names if n.split(".")[0] in PACKAGES}
+
+
+def reachable_from(module: str) -> set[str]:
+    """Repo-relative files of every project module ``module`` imports, transitively."""
+    seen: set[Path] = set()
+    todo = [module]
+    while todo:
+        path = _module_file(todo.pop())
+        if path is None or path in seen:
+            continue
+        seen.add(path)
+        todo.extend(_project_imports(path))
+    return {p.relative_to(ROOT).as_posix() for p in seen if p.name != "__init__.py"}
+
+
+def test_every_module_of_the_compiled_tick_is_a_kernel_source():
+    needed = reachable_from("sim.tick") - NOT_KERNEL
+    missing = sorted(needed - set(kernel_cache.KERNEL_SOURCES))
+    assert not missing, f"add to firmware_model/kernel_cache.py KERNEL_SOURCES: {missing}"
+
+
+def test_every_kernel_source_exists():
+    for name in kernel_cache.KERNEL_SOURCES:
+        assert (ROOT / name).is_file(), name
+
+
+def test_the_walk_sees_through_imports():
+    # the tick reaches the frame layout only through firmware_model/tick.py
+    assert "serial_protocol/frame.py" in reachable_from("sim.tick")
+    assert "serial_protocol/frame.py" not in reachable_from("sim.plant_kernel")
