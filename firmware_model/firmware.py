@@ -749,7 +749,10 @@ class Firmware:
             elif isinstance(field, int):
                 index = field
             else:
-                index = frame.field_index(type(msg), field)
+                try:
+                    index = frame.field_index(type(msg), field)
+                except KeyError:  # a refusal naming another message's field: never raise
+                    index = NO_FIELD
         return Nack(msg.cmd_id, msg_type, code, index, float(limit))
 
     def _handle(self, msg: Any) -> None:
@@ -1160,7 +1163,13 @@ class Firmware:
         # ABORT: the board's Stop (which closes the stream)
         if not st.active():
             return None
-        return self._cmd_stop(Stop(m.cmd_id, 0.0))
+        refusal = self._cmd_stop(Stop(m.cmd_id, 0.0))
+        if refusal is None:
+            return None
+        # The Stop's refusal names a Stop field (its a_max_dps2), which StreamControl does
+        # not have: the NACK keeps the code and the bound and names no field.
+        code, _, limit = refusal
+        return code, None, limit
 
     def _cmd_stream_points(self, m: StreamPoints) -> _Refusal | None:
         refusal = _check_ranges([("count", m.count, 1, STREAM_POINTS_PER_FRAME)])

@@ -510,3 +510,16 @@ def test_fig8_with_noise_seed_4_boots_where_the_axis_is():
 
     log = run(with_duration(load("fig8"), 0.1), seed=4).log
     assert abs(log.pos_deg[0] - log.true_pos_deg[0]) < 0.01  # was 4.4997 deg
+
+
+def test_a_refusal_naming_another_messages_field_is_a_nack_not_a_crash():
+    """Found by the 1,000,000-frame UART fuzz (chunk 18): a StreamControl ABORT whose Stop
+    was refused NACKed with the Stop's field name, and building that NACK raised KeyError
+    ("StreamControl has no field 'a_max_dps2'") out of the board. The NACK names no field."""
+    from firmware_model.firmware import Firmware
+    from serial_protocol.messages import NO_FIELD, StreamAction, StreamControl
+
+    fw = Firmware(FirmwareParams())
+    nack = fw._nack(StreamControl(7, StreamAction.ABORT), NackCode.TRAVEL, "a_max_dps2", 1.5)
+    assert (nack.cmd_id, nack.code, nack.field, nack.limit) == (7, NackCode.TRAVEL, NO_FIELD, 1.5)
+    assert nack.msg_type == int(MsgType.STREAM_CONTROL)
