@@ -205,8 +205,9 @@ def _watch_nacks(fw: Any, report: FuzzReport) -> None:
     def checked(msg: Any) -> Any:
         # The program queue catches up with the clock first (ProgramQueue.finish: blocks
         # started are committed, finished ones forgotten), as QueueControl does before it
-        # validates and every QueueStatus query does: time passing, not the command's doing. The 1,000,000-frame
-        # run flagged 112 NACKed QueueControl(OVERRIDE) for exactly that (docs/model.md).
+        # validates and every QueueStatus query does: time passing, not the command's doing.
+        # The 1,000,000-frame run flagged 112 NACKed QueueControl(OVERRIDE) for exactly that
+        # (docs/model.md).
         fw.program.finish(fw.tick * fw.dt_s)
         before = _snapshot(fw)
         reply = apply(msg)
