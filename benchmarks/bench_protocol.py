@@ -1,5 +1,6 @@
 """Protocol benchmark: encode and decode cost, decoder throughput, UART cost per tick, and
-the share of framing in one simulated servo tick.
+the share of framing in one simulated servo tick (one ``sim.step()`` per tick, and in the
+compiled multi-tick run that ``sim.loop.run`` uses).
 
     python3 benchmarks/bench_protocol.py [--quick]
 
@@ -155,6 +156,53 @@ def bench_simulation(ticks: int, repeats: int) -> tuple[float, float, float] | N
     return bare_us, with_us, frames / ticks
 
 
+def bench_compiled_run(repeats: int, duration_s: float) -> dict[str, float] | None:
+    """CPU time of the Fig. 8 run (N = 1, as ``sim.loop.run`` does it: many ticks per compiled
+    call) with a telemetry frame every tick and with telemetry off (``telemetry.decimation =
+    0``), paired: the difference is the board's framing and the UART in compiled code; the
+    PC's decode (``telemetry_arrays``) is timed on its own. Medians, us per tick."""
+    try:
+        import dataclasses
+        import resource
+        import statistics
+
+        from sim.config import load_experiment
+        from sim.loop import run
+    except ImportError as exc:
+        print(f"(simulation not available: {exc})", file=sys.stderr)
+        return None
+    root = Path(__file__).resolve().parents[1]
+    fig8 = load_experiment(root / "bench_configs" / "fig8.toml")
+    exp = dataclasses.replace(fig8, duration_s=duration_s)
+    off = {"telemetry.decimation": 0}
+
+    def cpu_s() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    def timed(overrides: dict | None) -> tuple[float, float]:
+        t0 = cpu_s()
+        res = run(exp, overrides=overrides)
+        t1 = cpu_s()
+        res.telemetry_arrays()
+        return t1 - t0, cpu_s() - t1
+
+    short = dataclasses.replace(fig8, duration_s=0.1)
+    run(short).telemetry_arrays()  # load the kernels
+    run(short, overrides=off)
+    on, off_runs = [], []
+    for _ in range(repeats):
+        on.append(timed(None))
+        off_runs.append(timed(off)[0])
+    us = 1e6 / round(duration_s * 500)
+    return {
+        "run_on": statistics.median(r for r, _ in on) * us,
+        "run_off": statistics.median(off_runs) * us,
+        "ratio": statistics.median(r / o for (r, _), o in zip(on, off_runs, strict=True)),
+        "decode": statistics.median(d for _, d in on) * us,
+    }
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer repeats (a smoke run)")
@@ -162,6 +210,7 @@ def main() -> int:
     n = 2_000 if args.quick else 50_000
     rows = bench_codec(n) + bench_uart(n)
     sim = bench_simulation(500 if args.quick else 5_000, 2 if args.quick else 5)
+    compiled = bench_compiled_run(2 if args.quick else 7, 2.0 if args.quick else 20.0)
     print("| measurement | value | unit |\n|---|---|---|")
     for label, value, unit in rows:
         print(f"| {label} | {value:,.2f} | {unit} |" if value < 1000 else
@@ -186,6 +235,20 @@ def main() -> int:
             f"({100 * (with_us - bare_us) / with_us:.1f} % of the tick with decode) |"
         )
         print(f"| real-time factor with decode | {2000 / with_us:.0f} | x |")
+    if compiled is not None:
+        c = compiled
+        framing = c["run_on"] - c["run_off"]
+        label = "Fig. 8 run (compiled, N = 1), a frame every tick, CPU"
+        print(f"| {label} | {c['run_on']:.2f} | us/tick |")
+        print(f"| the same run, telemetry off, CPU | {c['run_off']:.2f} | us/tick |")
+        print(
+            f"| board framing + UART in that run | {framing:.2f} | us/tick "
+            f"({100 * framing / c['run_on']:.1f} % of the run; paired ratio {c['ratio']:.3f}) |"
+        )
+        print(
+            f"| PC decode of that run (telemetry_arrays), CPU | {c['decode']:.2f} | us/tick "
+            f"({100 * c['decode'] / (c['run_on'] + c['decode']):.1f} % of run + decode) |"
+        )
     return 0
 
 

@@ -411,3 +411,88 @@ def test_a_flooding_client_neither_grows_the_server_nor_holds_back_the_next():
     finally:
         err = _stop(proc)
     assert _summary(err)["bytes_dropped_from_pc"] > 32 << 20, err
+
+
+# What runs inside the served process: serve itself, with a numba event listener that counts
+# every time numba takes its compiler lock (which it does to compile a kernel and to load one
+# from the cache) after the first line reaches stdout (the address).
+_SERVE_WATCHING_NUMBA = """
+import sys
+import numba.core.event as ev
+from sim.cli import main
+
+printed = []
+after = []
+
+class CompilerLock(ev.Listener):
+    def on_start(self, event):
+        if printed:
+            import traceback
+            after.append(" <- ".join(f.name for f in traceback.extract_stack()[-12:-3][::-1]))
+    def on_end(self, event):
+        pass
+
+class Stdout:
+    def __init__(self, stream):
+        self.stream = stream
+    def write(self, text):
+        if text.strip():
+            printed.append(text)
+        return self.stream.write(text)
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+ev.register("numba:compiler_lock", CompilerLock())
+sys.stdout = Stdout(sys.stdout)
+try:
+    rc = main(sys.argv[1:])
+finally:
+    print(f"compiler lock taken after the address: {len(after)}", file=sys.stderr)
+    for where in after[:5]:
+        print("  " + where, file=sys.stderr)
+sys.exit(rc)
+"""
+
+
+def test_the_address_is_printed_once_the_board_can_answer():
+    """serve prints its address only when it can answer at once: the socket is listening (one
+    connection attempt, no retry), the board has ticked, and every compiled kernel the served
+    loop uses is loaded. Checked by events, not by time: after the address is printed, numba
+    never takes its compiler lock again (to compile or load a kernel from the cache) while a
+    client opens a session, enables, runs a trapezoid and an S-curve move, stops and disables.
+    Printing the address before the kernels were loaded left the first command waiting 0.4-1 s
+    (seconds on a cold cache) behind the load, and the first commands of a client that opens
+    the address at once timed out."""
+    import socket
+
+    from serial_protocol.messages import Profile
+
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _SERVE_WATCHING_NUMBA, "serve", "--tcp", "0", "--speed", "4"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        url = proc.stdout.readline().strip()
+        assert url.startswith("socket://127.0.0.1:"), proc.communicate(timeout=20)[1]
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        # one attempt: a refused connection fails the test (the socket listens before the print)
+        socket.create_connection((host, int(port)), timeout=10).close()
+        with SerialLink.open(url) as link:
+            client = BoardClient(link, ack_timeout_s=1.0)
+            _drive_a_move(client)
+            start = _wait_status(client, lambda s: s.state is State.HOLDING, 20.0)
+            target_deg = start.pos_deg + 10.0
+            ack = client.move(target_deg, 100.0, 400.0, 4000.0, Profile.SCURVE)
+            assert isinstance(ack, Ack), ack
+            _wait_status(
+                client,
+                lambda s: s.state is State.HOLDING and abs(s.pos_deg - target_deg) < 0.5,
+                20.0,
+            )
+            assert isinstance(client.stop(), Ack)
+            assert isinstance(client.set_enable(False), Ack)
+    finally:
+        err = _stop(proc)
+    assert "compiler lock taken after the address: 0" in err, err
