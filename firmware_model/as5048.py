@@ -14,10 +14,10 @@ firmware's Python tick and the simulation's compiled tick call the same function
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
+from firmware_model.kernel_cache import kernel
 from firmware_model.laws.layout import C_D, C_RAW_PREV, REV
 
 __all__ = [
@@ -66,7 +66,7 @@ ERROR_NAMES = (
 ANGLE_UNUSABLE = (1 << _ERR_ANGLE_PARITY) | (1 << _ERR_EF) | (1 << _ERR_COF)
 
 
-@numba.njit(cache=True)
+@kernel
 def parity_bit(frame):
     """The even-parity bit over bits 14..0 of one frame."""
     bit = 0
@@ -75,7 +75,7 @@ def parity_bit(frame):
     return bit
 
 
-@numba.njit(cache=True)
+@kernel
 def reading_errors(angle_frame, diag_frame):
     """The errors of one reading as bits of :data:`ERROR_NAMES` (0 = a valid angle from a
     healthy chip)."""
@@ -114,7 +114,7 @@ def frame_errors(
     return np.array([reading_errors(x, y) for x, y in zip(a, d, strict=True)], dtype=np.int64)
 
 
-@numba.njit(cache=True)
+@kernel
 def check_reading(angle_frames, diag_frames, counts, C, diag_ticks, diag_errors, booted):
     """The firmware's check of one reading per member (every tick it gets the frames):
     ``diag_errors`` (int64 ``(N,)``) gets the error bits, ``diag_ticks`` counts the readings
@@ -131,7 +131,7 @@ def check_reading(angle_frames, diag_frames, counts, C, diag_ticks, diag_errors,
             counts[j] = (C[C_RAW_PREV, j] + C[C_D, j]) % REV
 
 
-@numba.njit(cache=True)
+@kernel
 def clear_diag(diag_ticks, diag_errors):
     """Every member's chip read valid frames (no error this tick)."""
     for j in range(diag_ticks.shape[0]):

@@ -6,6 +6,17 @@ the plant, the encoder...) or freezes their constants would load stale machine c
 one of those files changed. So: a digest of every kernel source file is kept next to the
 cache; when it changes, the cached kernels of all those files are dropped and compile again
 (once; ``sim.loop.compile_notice`` says so if it takes more than a second).
+
+``kernel`` is how every kernel of the compiled tick is compiled: ``numba.njit`` with
+``cache=True`` and without numba's reference counting (``_nrt=False``). A call from one
+compiled function to another that is not inlined increfs and decrefs every array it passes
+(an atomic operation each, on the function's entry and exit, and on every view taken or
+array unpacked from a tuple): that was ~40 % of an N = 1 tick (``perf``, 2 December). The
+kernels never allocate an array nor return one (the Python caller owns every array and holds
+it for the call's duration), so the counts protect nothing. A new kernel uses ``@kernel`` (or
+``@kernel(inline="always", ...)``); one that must allocate uses ``@kernel(_nrt=True)``
+(numba then refuses the allocation at compile time otherwise, with "Only accept returning of
+array passed into the function as argument").
 """
 
 from __future__ import annotations
@@ -13,7 +24,21 @@ from __future__ import annotations
 import hashlib
 from pathlib import Path
 
-__all__ = ["KERNEL_SOURCES", "check"]
+import numba
+
+__all__ = ["KERNEL_SOURCES", "check", "kernel"]
+
+
+def kernel(fn=None, /, **options):
+    """``numba.njit(cache=True, _nrt=False, **options)`` (see the module docstring); used
+    bare (``@kernel``), with options (``@kernel(error_model="numpy")``) or as a call
+    (``kernel(py_function)``)."""
+    options.setdefault("cache", True)
+    options.setdefault("_nrt", False)
+    if fn is None:
+        return numba.njit(**options)
+    return numba.njit(**options)(fn)
+
 
 _ROOT = Path(__file__).resolve().parents[1]
 #: Every source file with compiled kernels or constants frozen into them (repo-relative):
@@ -24,6 +49,7 @@ _ROOT = Path(__file__).resolve().parents[1]
 KERNEL_SOURCES = (
     "firmware_model/as5048.py",
     "firmware_model/fixedpoint.py",
+    "firmware_model/kernel_cache.py",
     "firmware_model/laws/dispatch.py",
     "firmware_model/laws/fixed_q.py",
     "firmware_model/laws/float64.py",

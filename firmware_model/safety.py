@@ -26,8 +26,7 @@ from __future__ import annotations
 
 import math
 
-import numba
-
+from firmware_model.kernel_cache import kernel
 from planner.profile import Profile
 
 __all__ = [
@@ -178,7 +177,7 @@ def edge_speed_dps(
     return math.sqrt(2.0 * decel_dps2 * max(room, 0.0))
 
 
-@numba.njit(cache=True)
+@kernel
 def sensor_mismatch_step(
     duty, current_a, vel_dps, live, supply_v, r_ohm, emf_v_per_dps, dt_s, window_s,
     tolerance_dps, tolerance_ratio, step_max_deg, excess_deg,
@@ -235,7 +234,7 @@ def sensor_mismatch_step(
     return worst
 
 
-@numba.njit(cache=True)
+@kernel
 def brake_countdown(brake_ticks):
     """One servo tick of the fault reaction's dynamic braking: each member's remaining
     braking ticks (int64 ``(N,)``, set by a trip to ``brake_s`` worth) count down to 0."""
@@ -244,7 +243,7 @@ def brake_countdown(brake_ticks):
             brake_ticks[j] -= 1
 
 
-@numba.njit(cache=True)
+@kernel
 def brake_enable(enable, brake_ticks):
     """The bridge enable of one current-loop period: a member still braking after a trip
     keeps its bridge on (``enable`` bool ``(N,)``, in place) with the duty 0 the law gives

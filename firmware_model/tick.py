@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from firmware_model import safety
+from firmware_model.kernel_cache import kernel
 from firmware_model.laws import dispatch as law
 from firmware_model.laws.layout import C_INNOV, C_STUCK, P_DUTY, P_IMEAS, P_POS, P_VEL, P_VREF
 from serial_protocol import frame
@@ -56,10 +56,10 @@ _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
 
 
 # The STEP move's speed limit near the travel ends: safety's function, compiled.
-_edge_speed_dps = numba.njit(cache=True)(safety.edge_speed_dps)
+_edge_speed_dps = kernel(safety.edge_speed_dps)
 
 
-@numba.njit(cache=True)
+@kernel
 def profile_at(prof, fs, t):
     """``Profile._at_scalar(t)`` of the packed profile (the same operations in order)."""
     duration = fs[FS_PROF_DURATION]
@@ -86,7 +86,7 @@ def profile_at(prof, fs, t):
     return fs[FS_PROF_P1] + fs[FS_PROF_V1] * (t - duration), fs[FS_PROF_V1], 0.0
 
 
-@numba.njit(cache=True)
+@kernel
 def _in_position(P, fs, enabled):
     """Every live member within ``in_position_deg`` of the target and slower than that
     per 0.1 s (True with no live member)."""
@@ -102,7 +102,7 @@ def _in_position(P, fs, enabled):
 SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK = range(7)
 
 
-@numba.njit(cache=True)
+@kernel
 def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     """The fault reaction's brake countdown, the back-EMF check
     (``safety.sensor_mismatch_step``), the setpoint of this tick (hold, the profile, or a
@@ -161,7 +161,7 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     return trip_screen(P, C, fs, fi) or sensor
 
 
-@numba.njit(cache=True)
+@kernel
 def trip_screen(P, C, fs, fi):
     """Whether a member meets a trip condition after this tick's servo step (encoder jump
     or stuck, over-speed, position outside ``[FS_POS_LO, FS_POS_HI]``, following error
@@ -188,7 +188,7 @@ def trip_screen(P, C, fs, fi):
     return False
 
 
-@numba.njit(cache=True)
+@kernel
 def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
     """One current-loop period (the law's step) and the over-current screen:
     a member counts the periods its |sensed current| stays above the threshold while
@@ -217,7 +217,7 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
     return trip
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def state_of(j, fi, enabled, fault):
     """The ``State`` code of member ``j``."""
     if fault[j]:
@@ -267,14 +267,14 @@ _FIELD_LO = np.array([float(_SAT.get(n, (1.0, 0, 0))[1]) for n in _NAMES])
 _FIELD_HI = np.array([float(_SAT.get(n, (1.0, 0, 0))[2]) for n in _NAMES])
 
 
-@numba.njit(cache=True, inline="always")
+@kernel(inline="always")
 def _put(out, at, value, size):
     for b in range(size):
         out[at + b] = (value >> (8 * b)) & 0xFF
     return at + size
 
 
-@numba.njit(cache=True)
+@kernel
 def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, tables):
     """Write the telemetry frame of ``(tick, values = (sp_pos_deg, sp_vel_dps, pos_deg,
     vel_dps, current_a, duty), state, fault, fault_flags)`` with sequence ``seq`` into

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 
+from firmware_model.kernel_cache import kernel
 from sim.params import BridgeParams, CurrentSenseParams
 
 __all__ = [
@@ -60,7 +60,7 @@ def switching_table(bridge: BridgeParams, n: int) -> Any:
     return table
 
 
-@numba.njit(cache=True)
+@kernel
 def switching(x, supply_v, shifts, d_out, sense_sign, volt):
     """The bridge's switching times per member, after ``apply_bridge``: the output pulse is
     ``|duty| / f_pwm + shift`` long, the shift by the current's direction at the start of
@@ -107,7 +107,7 @@ def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n
     return table
 
 
-@numba.njit(cache=True)
+@kernel
 def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     """The ADC counts of the IS pin per member: ``sim.bridge.sensed_current_a`` (the
     current in the direction of ``sense_sign``, the high side only) through
@@ -145,7 +145,7 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
         out[j] = np.int64(c)
 
 
-@numba.njit(cache=True)
+@kernel
 def apply_bridge(duty, enable, arr, supply_v, d_out, en_out, sense_sign, volt):
     """The bridge per member: the duty clamped to [-1, 1] on the timer's ``1/arr`` steps
     (``sim.bridge.quantise_duty``, half to even), the enable, the IS pin's sign of the

@@ -30,7 +30,6 @@ from __future__ import annotations
 import math
 from typing import Any
 
-import numba
 import numpy as np
 
 from firmware_model.as5048 import (
@@ -42,6 +41,7 @@ from firmware_model.as5048 import (
     OCF_BIT,
     parity_bit,
 )
+from firmware_model.kernel_cache import kernel
 from sim.params import EncoderParams, per_member
 from sim.plant import POS, VEL
 
@@ -198,7 +198,7 @@ def inl_params(params: EncoderParams, n: int) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True)
+@kernel
 def inl_counts(theta_rad, a1, p1, a2, p2):
     """The reading's INL error (counts) at motor angle ``theta_rad``: the first two
     harmonics, amplitudes ``a1``, ``a2`` (counts) and phases ``p1``, ``p2`` (rad)."""
@@ -208,7 +208,7 @@ def inl_counts(theta_rad, a1, p1, a2, p2):
 _NO_DRAW = np.empty(0)
 
 
-@numba.njit(cache=True)
+@kernel
 def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_per_rev, out, inl):
     """The reading of each member; ``draw`` holds one standard normal per member, or
     nothing for a noiseless encoder; ``inl`` the ``inl_params`` rows, or none."""
@@ -224,7 +224,7 @@ def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_p
         out[j] = np.int64(math.floor(c)) % counts_per_rev  # floored modulo, as Python
 
 
-@numba.njit(cache=True)
+@kernel
 def inject_faults(counts, noise_lsb, draw, counts_per_rev, fault, frozen_counts, lcg, angle, diag):
     """The injected faults of N members (``fault``: index into :data:`FAULT_KINDS`) on the
     readings ``counts`` (int64 ``(N,)``, in place), and the SPI frames of every member

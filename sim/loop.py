@@ -568,6 +568,7 @@ class Simulation:
         bridge_params = (self._arr_n, self._vs_n, self._shifts)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
         bps = float(bytes_per_s(uart_tx.baud))
+        values = np.empty(6)  # a telemetry frame's float fields (the kernel allocates nothing)
         x0, x1 = (x, spare)
         while True:
             fw._pack()
@@ -581,7 +582,7 @@ class Simulation:
             sim = (
                 x0, x1, self.dt_s, self.multiple, enc.kernel_params(n), enc.block, adc_params,
                 self._adc_block, self._adc_full, bridge_params, self._sense_sign, self._volt,
-                duty, enable, counts, adc, bps,
+                duty, enable, counts, adc, bps, values,
             )  # fmt: skip
             plant_args = (
                 plant._last_mech, plant._group, plant._slots, plant._phis, plant._rates,

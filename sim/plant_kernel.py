@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from firmware_model.kernel_cache import kernel
 
 __all__ = [
     "N_CONSTS", "hermite_leaves", "key", "pack_consts", "step", "step_members", "warm_up",
@@ -62,7 +63,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     return np.array(values)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def key(i, w, tw, wp, duty, enable, kc):
     """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
     power-flow modes)."""
@@ -98,7 +99,7 @@ def key(i, w, tw, wp, duty, enable, kc):
     return (((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _friction_region(v, band, stribeck):
     """0..4: below -stribeck, falling (negative side), band, falling (positive), above."""
     if v > band:
@@ -108,7 +109,7 @@ def _friction_region(v, band, stribeck):
     return 2
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _belt_torque(tw, rate, kc):
     """Belt torque on the platter (N*m) at twist ``tw`` and twist rate ``rate``."""
     half = kc[_HALF]
@@ -119,7 +120,7 @@ def _belt_torque(tw, rate, kc):
     return 0.0
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _flow_at_rest(torque_nm, tb, n, eta):
     """Power-flow mode of a motor at rest (w_m = 0) with belt torque ``tb`` != 0.
 
@@ -135,12 +136,12 @@ def _flow_at_rest(torque_nm, tb, n, eta):
     return 0 if (torque_nm > hi) == (tb > 0) else 1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _region(v, edge):
     return 2 if v > edge else (0 if v < -edge else 1)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def hermite_leaves(p0, p1, m0, m1, edge):
     """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has
     an interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
@@ -184,7 +185,7 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
@@ -275,7 +276,7 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     )
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def _advance(phis, row, level, i, p, w, tw, wp, d):
     """The state after one sub-step of ``h / 2**level`` in the mode of table row ``row``:
     ``Phi [x; d; 1]`` (the position is the integral, so ``p`` adds to its row)."""
@@ -324,11 +325,11 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
 # The member loop's copies of key and _excursion, inlined into it (numba IR): a call with
 # array arguments costs a reference count increment and decrement per array, which was a
 # third of a member's step. One source; step (the rare path) calls the plain ones.
-_key_inline = numba.njit(cache=True, error_model="numpy", inline="always")(key.py_func)
-_excursion_inline = numba.njit(cache=True, error_model="numpy", inline="always")(_excursion.py_func)
+_key_inline = kernel(error_model="numpy", inline="always")(key.py_func)
+_excursion_inline = kernel(error_model="numpy", inline="always")(_excursion.py_func)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@kernel(error_model="numpy")
 def step(
     i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
     stack_key,
@@ -408,7 +409,8 @@ def step(
     return i, p, w, tw, wp, key_end, n_events, -1
 
 
-@numba.njit(cache=True, error_model="numpy")
+# Reference counting on: the rare sub-step path allocates step's scratch (module docstring).
+@kernel(error_model="numpy", _nrt=True)
 def step_members(
     x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
     budget, out_x, out_keys,

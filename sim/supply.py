@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from firmware_model.kernel_cache import kernel
 from sim.params import PlantParams, per_member
 from sim.plant_kernel import step_members
 
@@ -52,7 +52,7 @@ __all__ = [
 N_SUPPLY = 13
 
 
-@numba.njit(cache=True)
+@kernel
 def rail_advance(v, i_out, h, vs, rs, c, rb, vb):
     """The rail voltage after ``h`` seconds from ``v`` with ``i_out`` (A, drawn from the
     rail; < 0 returns) held: the exact solution of the rail equation (module docstring),
@@ -109,7 +109,7 @@ def rail_advance(v, i_out, h, vs, rs, c, rb, vb):
     return v
 
 
-@numba.njit(cache=True)
+@kernel
 def bridge_current_a(duty, i_start, i_end, conducting):
     """The bridge's mean current from the rail over a sub-step (A): ``duty * i`` while it
     conducts, ``-|i|`` (returned through the body diodes) while its outputs are off."""
@@ -118,7 +118,7 @@ def bridge_current_a(duty, i_start, i_end, conducting):
     return -0.5 * (abs(i_start) + abs(i_end))
 
 
-@numba.njit(cache=True)
+@kernel
 def _inputs(j, x, duty, enable, v, locked, cfg, d_eff, en_eff, v_mid):
     """Member ``j``'s plant input over the next sub-step: the duty scaled by the rail
     predicted half-way (``v_mid``), or, outputs off, the diode voltage ``v + 2 V_f`` in the
@@ -138,7 +138,7 @@ def _inputs(j, x, duty, enable, v, locked, cfg, d_eff, en_eff, v_mid):
         en_eff[j] = False
 
 
-@numba.njit(cache=True)
+@kernel
 def step_period(
     x, xn, duty, enable, keys, known, start, group, slots, phis, rates, consts, levels, budget,
     bus, volt, sense_sign,
@@ -203,7 +203,7 @@ def step_period(
     return n, events, 0, -1
 
 
-@numba.njit(cache=True)
+@kernel
 def read_bus_adc(bus, supply_v, adc_full, out):
     """The bus voltage through the board's divider into the STM32's ADC, per member
     (rounded to nearest, clamped to the ADC's range): the rail with the bus model, the

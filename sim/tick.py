@@ -39,10 +39,8 @@ its place kept in ``ctx`` (tick, stage, current-loop period, plant member); the 
 
 from __future__ import annotations
 
-import numba
-import numpy as np
-
 from firmware_model import as5048, safety
+from firmware_model.kernel_cache import kernel
 from firmware_model.laws import dispatch as law_steps
 from firmware_model.laws.layout import (
     C_BUS_ADC,
@@ -93,10 +91,10 @@ N_CX = 14
 ) = range(11)  # fmt: skip
 N_F = 11
 
-_pace = numba.njit(cache=True)(uart.pace)
+_pace = kernel(uart.pace)
 
 
-@numba.njit(cache=True)
+@kernel
 def run_ticks(
     k_end, ctx, credit, flags, law, fw, sim, plant, logs, txbuf, tables, enc_faults,
 ):  # fmt: skip
@@ -107,7 +105,8 @@ def run_ticks(
     ``fw = (fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf)`` (``sf``:
     ``firmware_model.tick.servo_stage``'s); ``sim = (x0, x1, dt_s,
     multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
-    sense_sign, volt, duty, enable, counts, adc, bytes_per_s)``; ``plant = (keys, group,
+    sense_sign, volt, duty, enable, counts, adc, bytes_per_s, values)`` (``values``: scratch
+    for a telemetry frame's six float fields); ``plant = (keys, group,
     slots, phis, rates, consts, levels, budget, bus)`` (``bus``: ``sim.supply.Bus``'s
     arrays); ``logs = (xlog, signals (11 arrays of (capacity, N)), voltage, bus_v)``;
     ``enc_faults``: ``Encoder.fault_args`` (used while ``flags[F_ENC_FAULT]``)."""
@@ -116,7 +115,7 @@ def run_ticks(
     brake_ticks, diag_ticks, diag_errors = sf[3], sf[4], sf[5]
     enc_fault, frozen_counts, lcg, angle_frames, diag_frames = enc_faults
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
-    adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps = sim[8:]
+    adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps, values = sim[8:]
     keys, group, slots, phis, rates, consts, levels, budget, bus = plant
     xlog, signals, voltage, bus_log = logs
     # The log columns as locals: an array taken from a tuple inside the member loop would
@@ -128,10 +127,9 @@ def run_ticks(
     pwm = (duty, volt, sense_table)
     arr, supply_v, shifts = bridge_params
     n = x0.shape[0]
-    no_draw = np.empty(0)
+    no_draw = duty[:0]  # no noise draws (a view: the kernel allocates nothing)
     keep = flags[F_KEEP] != 0
     frame_bytes = flags[F_FRAME_BYTES]
-    values = np.empty(6)  # a telemetry frame's float fields
     while True:
         k = ctx[CX_K]
         stage = ctx[CX_STAGE]

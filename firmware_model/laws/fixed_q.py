@@ -10,10 +10,10 @@ Q-format integers, ``P`` the float view of what is published.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from firmware_model import fixedpoint as fx
+from firmware_model.kernel_cache import kernel
 from firmware_model.laws.float64 import _reset_member
 from firmware_model.laws.layout import (
     C_BUS_ADC,
@@ -90,28 +90,28 @@ _SIG_ONE = float(1 << fx.SIG_FRAC_BITS)
 _GAIN_ONE = float(1 << fx.GAIN_FRAC_BITS)
 
 
-@numba.njit(cache=True)
+@kernel
 def _sat(x):
     return _LO if x < _LO else (_HI if x > _HI else x)
 
 
-@numba.njit(cache=True)
+@kernel
 def _mul(s, g):
     """Q16.16 signal times Q8.24 gain -> Q16.16, rounded half up, saturated."""
     return _sat((s * g + _G_HALF) >> _GB)
 
 
-@numba.njit(cache=True)
+@kernel
 def _clamp(x, limit):
     return -limit if x < -limit else (limit if x > limit else x)
 
 
-@numba.njit(cache=True)
+@kernel
 def _sgn(x):
     return (1 if x > 0 else 0) - (1 if x < 0 else 0)
 
 
-@numba.njit(cache=True)
+@kernel
 def qsig(x):
     """A float as Q16.16 raw (rounded half to even, saturated)."""
     v = np.rint(x * _SIG_ONE)
@@ -119,7 +119,7 @@ def qsig(x):
     return np.int64(v)
 
 
-@numba.njit(cache=True)
+@kernel
 def qgain(x):
     """A float as Q8.24 raw (rounded half to even, saturated)."""
     v = np.rint(x * _GAIN_ONE)
@@ -127,7 +127,7 @@ def qgain(x):
     return np.int64(v)
 
 
-@numba.njit(cache=True)
+@kernel
 def _bus_v_q(j, C, K):
     """``float64.bus_v`` in Q16.16: the reading times volts per count (Q8.24), at least
     1 V."""
@@ -137,7 +137,7 @@ def _bus_v_q(j, C, K):
     return v if v > _SIG_ONE else np.int64(_SIG_ONE)
 
 
-@numba.njit(cache=True)
+@kernel
 def _regen_limits_q(j, il, C, S, G, K):
     """``float64._regen_limits`` in Q16.16 (one 64-bit division)."""
     emf = _mul(S[S_VEL, j], G[G_EMF_FF, j])
@@ -152,7 +152,7 @@ def _regen_limits_q(j, il, C, S, G, K):
     return lo, hi
 
 
-@numba.njit(cache=True)
+@kernel
 def estimate(raw, P, C, S, G, K):
     """``float64.estimate`` in Q-format."""
     ref_row = S_REF_PIPE + np.int64(K[K_REF_I])
@@ -185,7 +185,7 @@ def estimate(raw, P, C, S, G, K):
         P[P_VEL, j] = vel / _SIG_ONE
 
 
-@numba.njit(cache=True)
+@kernel
 def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, G, K):
     """``float64.servo`` in Q-format: the setpoint is rounded to whole counts on the way
     in (one count is exactly 18 raw Q16.16 units)."""
@@ -213,7 +213,7 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     K[K_I_LIMIT_A] = i_limit_a
 
 
-@numba.njit(cache=True)
+@kernel
 def current(adc, enabled, P, C, S, G, K):
     """``float64.current`` in Q-format; the duty is ``u / V_supply`` in Q16.16 times ARR."""
     ref_i = np.int64(K[K_REF_I])

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from firmware_model.kernel_cache import kernel
 from firmware_model.laws.layout import (
     C_BUS_ADC,
     C_COUNT,
@@ -78,7 +78,7 @@ from firmware_model.units import AXIS_DEG_PER_COUNT
 __all__ = ["current", "estimate", "servo"]
 
 
-@numba.njit(cache=True)
+@kernel
 def _clip(x, limit):
     """``min(max(x, -limit), limit)`` (NaN passes)."""
     if x < -limit:
@@ -88,7 +88,7 @@ def _clip(x, limit):
     return x
 
 
-@numba.njit(cache=True)
+@kernel
 def estimate(raw, P, C, S, G, K):
     """Unwrap each member's 14-bit reading ``raw`` (int64 ``(N,)``) around the observer's
     prediction and update the third-order velocity observer."""
@@ -124,7 +124,7 @@ def estimate(raw, P, C, S, G, K):
         P[P_VEL, j] = vel
 
 
-@numba.njit(cache=True)
+@kernel
 def bus_v(j, C, K):
     """Member ``j``'s bus voltage for the duty: measured (``K_BUS_COMP``), else the
     configured supply. A reading below 1 V counts as 1 V (no division by zero)."""
@@ -134,7 +134,7 @@ def bus_v(j, C, K):
     return v if v > 1.0 else 1.0
 
 
-@numba.njit(cache=True)
+@kernel
 def _regen_limits(j, i_limit_a, regen_a, C, S, G, K):
     """The velocity loop's current clamp ``(lo, hi)`` with the regenerative bus-current
     limit: on the braking side (the current against the back-EMF ``k_emf v``), ``|i| <=
@@ -152,7 +152,7 @@ def _regen_limits(j, i_limit_a, regen_a, C, S, G, K):
     return lo, hi
 
 
-@numba.njit(cache=True)
+@kernel
 def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, G, K):
     """Position P -> velocity PI with feed-forward, clamps and conditional integration:
     sets each member's velocity and current references."""
@@ -186,7 +186,7 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     K[K_I_LIMIT_A] = i_limit_a
 
 
-@numba.njit(cache=True)
+@kernel
 def current(adc, enabled, P, C, S, G, K):
     """One current-loop period per member: the signed IS reading, the current PI with its
     feed-forward, the regenerative clamp, the duty on the timer grid, the compute delay,
@@ -255,7 +255,7 @@ def current(adc, enabled, P, C, S, G, K):
         K[K_PIPE_I] = (pipe_i + 1) % delay
 
 
-@numba.njit(cache=True)
+@kernel
 def _reset_member(j, P, C, S, delay):
     """Zero member ``j``'s integrators, references and pipelines (not its measurement)."""
     S[S_I_V, j] = 0
@@ -273,7 +273,7 @@ def _reset_member(j, P, C, S, delay):
     P[P_DUTY, j] = 0.0
 
 
-@numba.njit(cache=True)
+@kernel
 def reset_control(mask, P, C, S, K):
     """``_reset_member`` for every member in ``mask`` (bool ``(N,)``), and its current
     measurement (a tripped or re-enabled controller starts from nothing)."""
