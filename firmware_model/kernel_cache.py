@@ -57,6 +57,7 @@ KERNEL_SOURCES = (
     "firmware_model/laws/layout.py",
     "firmware_model/params.py",
     "firmware_model/safety.py",
+    "firmware_model/thermal.py",
     "firmware_model/tick.py",
     "firmware_model/units.py",
     "planner/profile.py",
@@ -71,6 +72,7 @@ KERNEL_SOURCES = (
     "sim/plant.py",
     "sim/plant_kernel.py",
     "sim/supply.py",
+    "sim/thermal.py",
     "sim/tick.py",
 )
 

@@ -329,6 +329,13 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("platter", "stiction_nm"): (0.0, 1e4, "a slewing bearing's breakaway friction"),
     ("platter", "stribeck_rad_s"): (0.0, 1e3, "a Stribeck speed"),
     ("encoder", "noise_rms_lsb"): (0.0, 1000.0, "encoder noise"),
+    ("thermal", "ambient_c"): (-40.0, 85.0, "a room or an enclosure"),
+    ("thermal", "alpha_cu_per_k"): (0.0, 0.01, "a conductor's temperature coefficient"),
+    ("thermal", "magnet_tc_per_k"): (-0.005, 0.0, "a magnet's remanence coefficient"),
+    ("thermal", "r_winding_housing_k_w"): (0.01, 100.0, "a motor's thermal resistance"),
+    ("thermal", "r_housing_ambient_k_w"): (0.01, 100.0, "a motor's thermal resistance"),
+    ("thermal", "tau_winding_s"): (0.1, 3600.0, "a winding's thermal time constant"),
+    ("thermal", "tau_housing_s"): (1.0, 1e5, "a motor's thermal time constant"),
 }
 
 

@@ -48,6 +48,7 @@ from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
 from sim.plant import I_A, TWIST, VEL, Plant
 from sim.supply import Bus, read_bus_adc, step_period
+from sim.thermal import Heat, heat_advance, heat_groups
 
 __all__ = [
     "LOG_FIELDS", "RunLog", "RunResult", "Simulation", "apply_overrides", "run", "warm_up",
@@ -64,6 +65,7 @@ PLANT_FIELDS = (
     "current_a",
     "voltage_v",
     "bus_v",
+    "winding_c",
 )
 LOG_FIELDS = ("t_s",) + FW_FIELDS + PLANT_FIELDS
 _INT_FIELDS = ("state", "fault")
@@ -105,6 +107,7 @@ class RunLog:
     current_a: np.ndarray
     voltage_v: np.ndarray
     bus_v: np.ndarray
+    winding_c: np.ndarray
 
     def __len__(self) -> int:
         return int(self.t_s.shape[0])
@@ -306,6 +309,8 @@ class Simulation:
         # With the bus model the plant steps sub-steps of a current-loop period (sim.supply):
         # its tables are for the sub-step, located to the same finest step.
         self.bus = Bus(plant, n, self.h_s)
+        # The motor's temperatures ([thermal] model, sim.thermal), advanced every period.
+        self.heat = Heat(plant, n, self.h_s)
         sub_levels = self.bus.substeps.bit_length() - 1
         self.plant = Plant(
             plant, n, self.h_s / self.bus.substeps,
@@ -471,7 +476,7 @@ class Simulation:
     def _grow(self, min_cap: int = 0) -> None:
         cap = max(1024, 2 * self._cap, min_cap)
         n = self.n
-        fields = (*FW_FIELDS, "voltage_v", "bus_v")
+        fields = (*FW_FIELDS, "voltage_v", "bus_v", "winding_c")
         # One allocation for the whole log (every column 8 bytes a value): numpy backs an
         # allocation of 4 MB or more with huge pages, so a batch log (~35 kB a tick at
         # N = 256) costs a few page faults instead of one per 4 kB written.
@@ -557,13 +562,13 @@ class Simulation:
             arrays = self._arrays
             logs = (
                 self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
-                arrays["bus_v"],
+                arrays["bus_v"], arrays["winding_c"],
             )  # fmt: skip
         else:
             empty = np.empty((0, n))
             ints = np.empty((0, n), dtype=np.int64)
             logs = (
-                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty,
+                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty, empty,
             )  # fmt: skip
         bridge_params = (self._arr_n, self._vs_n, self._shifts)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
@@ -587,6 +592,7 @@ class Simulation:
             plant_args = (
                 plant._last_mech, plant._group, plant._slots, plant._phis, plant._rates,
                 plant._consts, plant.event_levels, plant.split_budget, self.bus.kernel_args(),
+                self.heat.kernel_args(),
             )  # fmt: skip
             fw_args = (
                 fw._fs, fw._fi, fw._enabled, fw._fault, fw._oc_ticks, fw._prof, en_now,
@@ -651,6 +657,8 @@ class Simulation:
                     self._adc_block = self._rng.standard_normal((rows, n))
                     self._adc_row = 0
                     ctx[st.CX_ADC_ROW] = 0
+            elif code == st.STOP_HEAT:
+                self.heat.make_group(plant)
             elif code == st.STOP_UART:
                 # The PC -> board direction of _move_bytes (the TX line moved in run_ticks).
                 rx = self.uart_rx
@@ -671,23 +679,29 @@ class Simulation:
     def _plant_period(self, x: np.ndarray, d: np.ndarray, en: np.ndarray) -> np.ndarray:
         """One current-loop period of the plant with ``(d, en)`` held (``sim.supply.
         step_period``, the compiled tick's plant stage); returns the new states."""
-        plant = self.plant
+        plant, heat = self.plant, self.heat
+        if heat.on:  # the parameter set of each winding's temperature (sim.thermal)
+            while heat_groups(x, heat.kernel_args(), plant._group, plant._last_mech, plant._consts):
+                heat.make_group(plant)
         if not self.bus.on:
-            return plant.update(0.0, x, (d, en))
-        xn = np.empty_like(x)
-        known = x is plant._last_x
-        start = 0
-        while True:
-            start, events, group, need = step_period(
-                x, xn, d, en, plant._last_mech, known, start, plant._group, plant._slots,
-                plant._phis, plant._rates, plant._consts, plant.event_levels,
-                plant.split_budget, self.bus.kernel_args(), self._volt, self._sense_sign,
-            )  # fmt: skip
-            plant.n_events += events
-            if need < 0:
-                break
-            plant._load(group, need)
-        plant._last_x = xn
+            xn = plant.update(0.0, x, (d, en))
+        else:
+            xn = np.empty_like(x)
+            known = x is plant._last_x
+            start = 0
+            while True:
+                start, events, group, need = step_period(
+                    x, xn, d, en, plant._last_mech, known, start, plant._group, plant._slots,
+                    plant._phis, plant._rates, plant._consts, plant.event_levels,
+                    plant.split_budget, self.bus.kernel_args(), self._volt, self._sense_sign,
+                )  # fmt: skip
+                plant.n_events += events
+                if need < 0:
+                    break
+                plant._load(group, need)
+            plant._last_x = xn
+        if heat.on:
+            heat_advance(x, xn, heat.kernel_args())
         return xn
 
     def _step(self) -> None:
@@ -703,6 +717,7 @@ class Simulation:
             # The plant state at the sampling instant, where the firmware sees it.
             self._xlog[k] = x
             self._arrays["bus_v"][k] = self.bus_v
+            self._arrays["winding_c"][k] = self.heat.winding_c()
         counts = self.encoder.read(x, self._noise_rows)
         spi = self.encoder.spi_frames()  # None: valid frames (no fault injected)
         if spi is None:  # (a firmware object of a test may not take the frames)

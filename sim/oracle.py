@@ -15,6 +15,13 @@ rail voltage, and the right-hand side is ``derivative_bus``: the bridge applies
 current ``duty * i`` (or ``-|i|`` through the diodes) as it is at every instant. The
 lock-out comparators are sampled at the ends of the same sub-steps as the simulation's
 (part of the model: their response time), so each sub-step is one held-input segment here.
+
+With the heat model (``[thermal] model``, ``sim.thermal``) the state has two more entries,
+the winding and housing temperatures (degC), and the right-hand side is ``derivative_heat``:
+R, K_t and K_e at the winding's temperature *as it is at every instant* (the simulation
+rounds it to ``matrix_step_k`` and holds it over a period), the copper loss ``i^2 R(T)`` and
+the motor's friction loss as they are at every instant (the simulation's are held over a
+period). The bus and the heat together are not offered.
 """
 
 from __future__ import annotations
@@ -28,7 +35,42 @@ from sim.drivetrain import belt_torque_nm, stuck_at_rest
 from sim.params import PlantParams
 from sim.plant import _derivative_one, derivative
 
-__all__ = ["derivative_bus", "replay"]
+__all__ = ["derivative_bus", "derivative_heat", "replay"]
+
+
+def _motor_at(t_w: float, params: PlantParams) -> tuple[float, float, float]:
+    """The motor's (R, K_t, K_e) with its winding at ``t_w`` (degC)."""
+    m, th = params.motor, params.thermal
+    dt = t_w - th.reference_c
+    mag = 1.0 + th.magnet_tc_per_k * dt
+    return m.r_ohm * (1.0 + th.alpha_cu_per_k * dt), m.kt_nm_a * mag, m.ke_v_s_rad * mag
+
+
+def derivative_heat(
+    t: float,
+    y: np.ndarray,
+    u: tuple[float, bool],
+    params: PlantParams,
+    motor_dir: float | None = None,
+) -> np.ndarray:
+    """dy/dt of the plant with its motor's heat, ``y`` = the 5 states of ``sim.plant``, the
+    winding's and the housing's temperature (degC); the network of
+    ``firmware_model.thermal`` written out with its capacities."""
+    duty, enable = u
+    th, m = params.thermal, params.motor
+    t_w, t_h = float(y[5]), float(y[6])
+    r_m, kt, ke = _motor_at(t_w, params)
+    dx = _derivative_one(y, duty, bool(enable), params, motor_dir, motor_rke=(r_m, kt, ke))
+    i, speed = float(y[0]), abs(float(y[2]))
+    p_w = i * i * r_m
+    sat = min(speed / m.coulomb_band_rad_s, 1.0)
+    p_h = th.friction_heat_fraction * speed * (m.viscous_nm_s_rad * speed + m.coulomb_nm * sat)
+    r_wh, r_ha = th.r_winding_housing_k_w, th.r_housing_ambient_k_w
+    c_w, c_h = th.tau_winding_s / r_wh, th.tau_housing_s / r_ha
+    flow = (t_w - t_h) / r_wh
+    d_w = (p_w - flow) / c_w
+    d_h = (p_h + flow - (t_h - th.ambient_c) / r_ha) / c_h
+    return np.append(dx, (d_w, d_h))
 
 
 def derivative_bus(
@@ -88,10 +130,21 @@ def replay(
 
     With ``[supply] bus_model`` the states are ``(K // every, 6)``, the rail voltage last
     (``x0`` of 5 entries starts the rail at the supply voltage), each input held over
-    ``bus_substeps`` sub-steps with the lock-out sampled at their ends."""
+    ``bus_substeps`` sub-steps with the lock-out sampled at their ends. With ``[thermal]
+    model``, ``(K // every, 7)``: the winding's and the housing's temperature last (``x0``
+    of 5 entries starts them as ``[thermal]`` says)."""
     bus = bool(params.supply.bus_model)
-    n_x = 6 if bus else 5
+    heat = bool(params.thermal.model)
+    if bus and heat:
+        raise ValueError("the oracle takes the bus model or the heat model, not both")
+    n_x = 6 if bus else (7 if heat else 5)
     y = np.zeros(n_x) if x0 is None else np.array(x0, dtype=float)
+    if heat and (x0 is None or y.shape[0] == 5):
+        th = params.thermal
+        y = np.append(
+            y[:5],
+            (th.ambient_c + th.initial_winding_rise_k, th.ambient_c + th.initial_housing_rise_k),
+        )
     if bus:
         if params.supply.brake_resistor_ohm > 0:
             raise ValueError("brake_resistor_ohm > 0: the oracle has no brake chopper")
@@ -102,10 +155,12 @@ def replay(
     sub = int(params.supply.bus_substeps) if bus else 1
     br = params.bridge
     locked = False
-    rhs = derivative_bus if bus else derivative
+    rhs = derivative_bus if bus else (derivative_heat if heat else derivative)
     stuck = False
     side = 0.0
-    kt = params.motor.kt_nm_a
+
+    def kt_of(s: np.ndarray) -> float:
+        return _motor_at(float(s[5]), params)[1] if heat else params.motor.kt_nm_a
     out = []
     for kk in range(len(duty) * sub):
         k = kk // sub
@@ -118,10 +173,10 @@ def replay(
             if stuck:
 
                 def leave_lo(_t, s, p=params):
-                    return kt * s[0] - _band(s, p)[0]
+                    return kt_of(s) * s[0] - _band(s, p)[0]
 
                 def leave_hi(_t, s, p=params):
-                    return kt * s[0] - _band(s, p)[1]
+                    return kt_of(s) * s[0] - _band(s, p)[1]
 
                 leave_lo.terminal = leave_hi.terminal = True
                 leave_lo.direction, leave_hi.direction = -1, 1
@@ -166,7 +221,7 @@ def replay(
                 stuck = False  # the torque left the band: the motor turns again
             else:
                 y[2] = 0.0
-                stuck = stuck_at_rest(kt * y[0], _belt(y, params), params)
+                stuck = stuck_at_rest(kt_of(y) * y[0], _belt(y, params), params)
             if t_hit <= t:  # an event at the start (at rest with no force): step over it
                 sol = solve_ivp(
                     lambda tt, s, u=u, x=extra: rhs(tt, s, u, params, None, *x), (t, t_end), y,

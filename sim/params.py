@@ -29,6 +29,7 @@ __all__ = [
     "PlatterParams",
     "SupplyParams",
     "TABLES",
+    "ThermalParams",
     "UartParams",
     "largest_board_frame",
     "per_member",
@@ -504,6 +505,82 @@ class LoopParams:
         )
 
 
+# The temperature range of the heat model (degC): the plant's step matrices exist for
+# winding temperatures in it (sim.thermal clips to it), the parameters are checked against it.
+T_MIN_C, T_MAX_C = -60.0, 250.0
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """The motor's heat: a two-node lumped network (winding -> housing -> ambient), the
+    winding's resistance R(T) and the magnets' torque constant Kt(T) (``sim.thermal``).
+
+    ``model = false`` (the default) keeps the motor at ``reference_c``: ``[motor] r_ohm``,
+    ``kt_nm_a`` and ``ke_v_s_rad`` as given (the model before, bit for bit). ``true``:
+    the winding is heated by ``i^2 R(T)``, the housing by ``friction_heat_fraction`` of the
+    motor's own friction loss; ``R(T) = R_ref (1 + alpha_cu (T - T_ref))`` for the motor
+    (the bridge's R_ON stays at its 25 degC value), ``Kt(T) = Kt_ref (1 + magnet_tc (T -
+    T_ref))`` and the same for K_e. The capacities follow from the time constants as in
+    a motor catalogue: ``C_w = tau_w / R_wh``, ``C_h = tau_h / R_ha``.
+    ``matrix_step_k``: the plant's exact step matrices are built for the winding
+    temperature rounded to this step (docs/model.md, "Heat"). The run starts with the
+    winding and the housing ``initial_winding_rise_k`` / ``initial_housing_rise_k`` above
+    ``ambient_c`` (0, 0: a motor at ambient).
+    """
+
+    model: bool = False
+    ambient_c: float = 25.0
+    initial_winding_rise_k: float = 0.0
+    initial_housing_rise_k: float = 0.0
+    reference_c: float = 20.0
+    alpha_cu_per_k: float = 0.00393
+    magnet_tc_per_k: float = -0.002
+    r_winding_housing_k_w: float = 2.5
+    r_housing_ambient_k_w: float = 6.0
+    tau_winding_s: float = 30.0
+    tau_housing_s: float = 900.0
+    friction_heat_fraction: float = 1.0
+    matrix_step_k: float = 0.1
+
+    def __post_init__(self) -> None:
+        _check(self, "model", isinstance(self.model, bool), "must be true or false")
+        for name in (
+            "ambient_c", "reference_c", "alpha_cu_per_k", "magnet_tc_per_k",
+            "initial_winding_rise_k", "initial_housing_rise_k",
+        ):  # fmt: skip
+            _check(self, name, _finite(getattr(self, name)), "must be finite")
+        _positive(
+            self, "r_winding_housing_k_w", "r_housing_ambient_k_w", "tau_winding_s",
+            "tau_housing_s", "matrix_step_k",
+        )  # fmt: skip
+        f = np.asarray(self.friction_heat_fraction)
+        _check(
+            self, "friction_heat_fraction", _finite(f) and bool(np.all((f >= 0) & (f <= 1))),
+            "must be in [0, 1]",
+        )  # fmt: skip
+        # The temperatures the model covers (its tables of step matrices, R(T) > 0).
+        for name, v in (
+            ("ambient_c", self.ambient_c),
+            ("initial_winding_rise_k", self.ambient_c + self.initial_winding_rise_k),
+            ("initial_housing_rise_k", self.ambient_c + self.initial_housing_rise_k),
+        ):
+            _check(
+                self, name, bool(np.all((np.asarray(v) >= T_MIN_C) & (np.asarray(v) <= T_MAX_C))),
+                f"the temperature must be in [{T_MIN_C:g}, {T_MAX_C:g}] degC (the model's range)",
+            )  # fmt: skip
+        for name in ("alpha_cu_per_k", "magnet_tc_per_k"):
+            k = np.asarray(getattr(self, name))
+            worst = np.minimum(1 + k * (T_MIN_C - self.reference_c), 1 + k * (T_MAX_C - self.reference_c))
+            _check(
+                self, name, bool(np.all(worst > 0)),
+                f"makes the motor's constant <= 0 within [{T_MIN_C:g}, {T_MAX_C:g}] degC",
+            )  # fmt: skip
+        _check(
+            self, "matrix_step_k", bool(np.all(np.asarray(self.matrix_step_k) <= 10.0)),
+            "must be at most 10 K",
+        )  # fmt: skip
+
+
 @dataclass(frozen=True)
 class PlantParams:
     """Everything the physical model needs, one field per TOML table."""
@@ -516,6 +593,7 @@ class PlantParams:
     belt: BeltParams = field(default_factory=BeltParams)
     platter: PlatterParams = field(default_factory=PlatterParams)
     encoder: EncoderParams = field(default_factory=EncoderParams)
+    thermal: ThermalParams = field(default_factory=ThermalParams)
 
     @property
     def motor_coulomb_nm(self) -> Any:
@@ -574,6 +652,7 @@ TABLES: dict[str, type] = {
     "belt": BeltParams,
     "platter": PlatterParams,
     "encoder": EncoderParams,
+    "thermal": ThermalParams,
     "uart": UartParams,
     "loop": LoopParams,
 }

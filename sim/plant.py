@@ -384,16 +384,20 @@ def _derivative_one(
     params: PlantParams,
     motor_dir: float | None = None,
     bus_v: float | None = None,
+    motor_rke: tuple[float, float, float] | None = None,
 ) -> np.ndarray:
     """``derivative`` for one state (5,) on Python floats: the same laws, ~10x faster for
     ``solve_ivp``; the tests check it against the vectorised branch. ``bus_v``: the bridge's
-    rail (V) instead of the stiff supply (the bus model's oracle, ``sim.oracle``)."""
+    rail (V) instead of the stiff supply (the bus model's oracle, ``sim.oracle``);
+    ``motor_rke``: the motor's (R, K_t, K_e) instead of ``[motor]``'s (the heat model's
+    oracle: R and K_t at the winding's temperature; R without the bridge's R_ON)."""
     m, pl, br = params.motor, params.platter, params.bridge
     n = params.total_ratio
     vs = params.supply.voltage_v if bus_v is None else bus_v
     i, _, w, tw, wp = (float(v) for v in x[:5])
-    emf = m.ke_v_s_rad * w
-    r = m.r_ohm + br.r_on_path_ohm
+    r_m, kt, ke = (m.r_ohm, m.kt_nm_a, m.ke_v_s_rad) if motor_rke is None else motor_rke
+    emf = ke * w
+    r = r_m + br.r_on_path_ohm
     if enable:
         di = (vs * duty - r * i - emf) / m.l_h
         icl = br.current_limit_a
@@ -427,7 +431,7 @@ def _derivative_one(
         )
         + pl.viscous_nm_s_rad * wp
     )
-    dw = 0.0 if motor_dir == 0 else (m.kt_nm_a * i - fm - g * tb) / m.j_kgm2
+    dw = 0.0 if motor_dir == 0 else (kt * i - fm - g * tb) / m.j_kgm2
     return np.array([di, w, dw, rate, (tb - fp) / pl.j_kgm2])
 
 
@@ -501,6 +505,21 @@ class Plant:
         i, _, w, tw, wp = (float(v) for v in x)
         consts = self._consts[self._group[member]]
         return int(plant_kernel.key(i, w, tw, wp, float(duty), bool(enable), consts))
+
+    def add_group(self, co: Coefficients) -> int:
+        """A new parameter set ``co`` (e.g. the motor at another temperature, ``sim.thermal``)
+        with no matrices loaded yet; returns its index for ``group``."""
+        g = len(self._sets)
+        self._sets.append(co)
+        if g == self._consts.shape[0]:  # grow by doubling (rows past the last set unused)
+            grow = 2 * g
+            consts = np.zeros((grow, self._consts.shape[1]))
+            consts[:g] = self._consts
+            slots = np.full((grow, N_MODES), -1, dtype=np.int64)
+            slots[:g] = self._slots
+            self._consts, self._slots = consts, slots
+        self._consts[g] = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s)
+        return g
 
     def _load(self, group: int, key: int) -> None:
         """Put mode ``key``'s matrices (parameter set ``group``) into the step's tables."""

@@ -34,6 +34,8 @@ its place kept in ``ctx`` (tick, stage, current-loop period, plant member); the 
 ``STOP_MODE``      the plant met a mode without matrices: ``Plant._load``
 ``STOP_NOISE``     a block of noise draws is used up: draw the next block
 ``STOP_UART``      the PC -> board line is busy: move its bytes (``EmulatedUart``)
+``STOP_HEAT``      a winding reached a temperature without plant tables:
+                   ``sim.thermal.Heat.make_group``
 =================  ===========================================================
 """
 
@@ -71,12 +73,14 @@ from serial_protocol import uart
 from sim.bridge import apply_bridge, read_adc, switching
 from sim.encoder import _read, inject_faults
 from sim.supply import read_bus_adc, step_period
+from sim.thermal import heat_advance, heat_groups
 
 __all__ = ["run_ticks"]
 
 (
     STOP_END, STOP_RX, STOP_TRIP, STOP_TRANSMIT, STOP_OC, STOP_MODE, STOP_NOISE, STOP_UART,
-) = range(8)  # fmt: skip
+    STOP_HEAT,
+) = range(9)  # fmt: skip
 TOP, SERVO, TICKUP, TRANSMIT, CURRENT, BRIDGE, PLANT, LOG = range(8)
 # ctx: where the run is and what it owes the caller.
 (
@@ -107,8 +111,9 @@ def run_ticks(
     multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
     sense_sign, volt, duty, enable, counts, adc, bytes_per_s, values)`` (``values``: scratch
     for a telemetry frame's six float fields); ``plant = (keys, group,
-    slots, phis, rates, consts, levels, budget, bus)`` (``bus``: ``sim.supply.Bus``'s
-    arrays); ``logs = (xlog, signals (11 arrays of (capacity, N)), voltage, bus_v)``;
+    slots, phis, rates, consts, levels, budget, bus, heat)`` (``bus``: ``sim.supply.Bus``'s
+    arrays, ``heat``: ``sim.thermal.Heat``'s); ``logs = (xlog, signals (11 arrays of
+    (capacity, N)), voltage, bus_v, winding_c)``;
     ``enc_faults``: ``Encoder.fault_args`` (used while ``flags[F_ENC_FAULT]``)."""
     P, C, S, G, K = law
     fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf = fw
@@ -116,8 +121,10 @@ def run_ticks(
     enc_fault, frozen_counts, lcg, angle_frames, diag_frames = enc_faults
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps, values = sim[8:]
-    keys, group, slots, phis, rates, consts, levels, budget, bus = plant
-    xlog, signals, voltage, bus_log = logs
+    keys, group, slots, phis, rates, consts, levels, budget, bus, heat = plant
+    xlog, signals, voltage, bus_log, winding_log = logs
+    heat_on = heat[0].shape[0] > 0
+    temps, reference_c = heat[0], heat[5]
     # The log columns as locals: an array taken from a tuple inside the member loop would
     # cost a reference count increment and decrement per member and column.
     sig0, sig1, sig2, sig3, sig4, sig5, sig6, sig7, sig8, sig9, sig10 = signals
@@ -153,6 +160,7 @@ def run_ticks(
                     for q in range(5):
                         xlog[k, j, q] = x[j, q]
                     bus_log[k, j] = bus_src[j]
+                    winding_log[k, j] = temps[j, 0] if heat_on else reference_c[j]
             _read(
                 x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
             )
@@ -239,6 +247,9 @@ def run_ticks(
                 stage = PLANT
                 ctx[CX_MEMBER] = 0
             if stage == PLANT:
+                if heat_on and heat_groups(x, heat, group, keys, consts):
+                    ctx[CX_STAGE] = PLANT
+                    return STOP_HEAT
                 start, events, g, need = step_period(
                     x, xn, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group, slots,
                     phis, rates, consts, levels, budget, bus, volt, sense_sign,
@@ -250,6 +261,8 @@ def run_ticks(
                     ctx[CX_NEED_GROUP] = g
                     ctx[CX_NEED_MODE] = need
                     return STOP_MODE
+                if heat_on:
+                    heat_advance(x, xn, heat)
                 ctx[CX_KNOWN] = 1
                 ctx[CX_FLIP] ^= 1
                 x, xn = xn, x

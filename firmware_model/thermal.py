@@ -1,0 +1,77 @@
+"""A two-node lumped thermal network, written once: the plant's motor (``sim.thermal``) and
+the firmware's estimate of it (``firmware_model.safety.thermal_protection``) both step it.
+
+Nodes: the winding (temperature ``T_w``, capacity ``C_w``) and the housing (``T_h``,
+``C_h``); the winding loses heat to the housing through ``R_wh``, the housing to the
+ambient ``T_a`` through ``R_ha`` (K/W)::
+
+    C_w dT_w/dt = P_w - (T_w - T_h) / R_wh
+    C_h dT_h/dt = P_h + (T_w - T_h) / R_wh - (T_h - T_a) / R_ha
+
+``P_w`` (W) heats the winding (its copper loss), ``P_h`` the housing. With the inputs held
+over a step ``h`` the exact step is ``T' = Phi T + Gamma (P_w, P_h, T_a)``
+(``network_zoh``: the exponential of the augmented 5 x 5 matrix), six multiply-adds per
+member (``network_step``). A catalogue gives the two thermal time constants and the two
+resistances (maxon's lines "thermal resistance winding-housing / housing-ambient",
+"thermal time constant winding / motor", the constants being "the product of thermal
+capacity and given heat resistances"): ``C_w = tau_w / R_wh``, ``C_h = tau_h / R_ha``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from firmware_model.kernel_cache import kernel
+
+__all__ = ["N_NET", "network_step", "network_zoh", "steady_rise_k"]
+
+# A step's numbers: Phi (2 x 2, row-major), then Gamma (2 x 3 row-major: P_w, P_h, T_a).
+N_NET = 10
+
+
+def _expm(m: np.ndarray) -> np.ndarray:
+    """exp(m) of a small matrix: scaling and squaring around a Taylor series (the network's
+    step matrix has a tiny norm; no BLAS threads for a 5 x 5 product)."""
+    norm = float(np.max(np.sum(np.abs(m), axis=0)))
+    s = max(0, int(np.ceil(np.log2(norm / 0.25)))) if norm > 0.25 else 0
+    a = m / (1 << s)
+    out = np.eye(m.shape[0])
+    term = np.eye(m.shape[0])
+    for k in range(1, 30):
+        term = np.einsum("ij,jk->ik", term, a) / k
+        out = out + term
+        if float(np.max(np.abs(term))) <= 1e-18:
+            break
+    for _ in range(s):
+        out = np.einsum("ij,jk->ik", out, out)
+    return out
+
+
+def network_zoh(
+    r_wh_k_w: float, r_ha_k_w: float, tau_w_s: float, tau_h_s: float, h_s: float
+) -> np.ndarray:
+    """The exact step of the network over ``h_s`` with its inputs held: ``(10,)`` =
+    ``Phi`` row-major (4) then ``Gamma`` row-major (2 x 3: P_w, P_h, T_a)."""
+    c_w, c_h = tau_w_s / r_wh_k_w, tau_h_s / r_ha_k_w
+    g_wh, g_ha = 1.0 / r_wh_k_w, 1.0 / r_ha_k_w
+    m = np.zeros((5, 5))
+    m[0, 0], m[0, 1], m[0, 2] = -g_wh / c_w, g_wh / c_w, 1.0 / c_w
+    m[1, 0], m[1, 1] = g_wh / c_h, -(g_wh + g_ha) / c_h
+    m[1, 3], m[1, 4] = 1.0 / c_h, g_ha / c_h
+    e = _expm(m * h_s)
+    return np.concatenate([e[:2, :2].ravel(), e[:2, 2:].ravel()])
+
+
+def steady_rise_k(p_w: float, p_h: float, r_wh_k_w: float, r_ha_k_w: float) -> tuple[float, float]:
+    """Steady temperature rises above ambient (K) of winding and housing for held powers."""
+    rise_h = (p_w + p_h) * r_ha_k_w
+    return rise_h + p_w * r_wh_k_w, rise_h
+
+
+@kernel(error_model="numpy")
+def network_step(temps, j, p_w, p_h, t_a, net):
+    """Advance member ``j``'s ``temps[j] = (T_w, T_h)`` (degC) by one step with the powers
+    ``p_w``, ``p_h`` (W) and the ambient ``t_a`` held; ``net``: ``network_zoh``'s (10,)."""
+    tw, th = temps[j, 0], temps[j, 1]
+    temps[j, 0] = net[0] * tw + net[1] * th + net[4] * p_w + net[5] * p_h + net[6] * t_a
+    temps[j, 1] = net[2] * tw + net[3] * th + net[7] * p_w + net[8] * p_h + net[9] * t_a
