@@ -570,7 +570,8 @@ class ThermalParams:
             )  # fmt: skip
         for name in ("alpha_cu_per_k", "magnet_tc_per_k"):
             k = np.asarray(getattr(self, name))
-            worst = np.minimum(1 + k * (T_MIN_C - self.reference_c), 1 + k * (T_MAX_C - self.reference_c))
+            ref = self.reference_c
+            worst = np.minimum(1 + k * (T_MIN_C - ref), 1 + k * (T_MAX_C - ref))
             _check(
                 self, name, bool(np.all(worst > 0)),
                 f"makes the motor's constant <= 0 within [{T_MIN_C:g}, {T_MAX_C:g}] degC",

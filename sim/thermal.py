@@ -99,8 +99,10 @@ def heat_advance(x, xn, heat):
         i0, i1 = x[j, 0], xn[j, 0]
         r = cfg[j, H_RM] * (1.0 + cfg[j, H_ALPHA] * (temps[j, 0] - cfg[j, H_TREF]))
         p_w = r * (i0 * i0 + i0 * i1 + i1 * i1) / 3.0
-        p_h = cfg[j, H_FRIC] * 0.5 * (
-            _friction_power_w(x[j, 2], cfg, j) + _friction_power_w(xn[j, 2], cfg, j)
+        p_h = (
+            cfg[j, H_FRIC]
+            * 0.5
+            * (_friction_power_w(x[j, 2], cfg, j) + _friction_power_w(xn[j, 2], cfg, j))
         )
         network_step(temps, j, p_w, p_h, cfg[j, H_AMB], cfg[j])
 

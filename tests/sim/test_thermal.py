@@ -171,7 +171,9 @@ def test_replay_against_solve_ivp_with_the_temperatures():
     # Fig. 6's first 0.8 s at 5 A from a warm winding, replayed by solve_ivp with R, Kt, Ke
     # at the winding's temperature as it is at every instant (sim.oracle.derivative_heat).
     over = {
-        **HEAT, "thermal.matrix_step_k": 0.05, "thermal.initial_winding_rise_k": 20.0,
+        **HEAT,
+        "thermal.matrix_step_k": 0.05,
+        "thermal.initial_winding_rise_k": 20.0,
         "thermal.initial_housing_rise_k": 20.0,
     }
     duty, enable, params, result = _run_inputs(0.8, **over)
@@ -207,7 +209,7 @@ def test_bad_thermal_values_are_refused_in_one_line(key, value, words):
 
 def test_a_bad_thermal_value_in_a_bench_file_is_exit_status_2(tmp_path, capsys):
     bench = tmp_path / "bench.toml"
-    bench.write_text('[thermal]\nmodel = true\ntau_housing_s = -5.0\n')
+    bench.write_text("[thermal]\nmodel = true\ntau_housing_s = -5.0\n")
     exp = tmp_path / "exp.toml"
     exp.write_text(f'bench = "{bench}"\nduration_s = 0.1\n')
     status = cli.main(["run", str(exp), "--out", str(tmp_path / "out")])
