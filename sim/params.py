@@ -164,15 +164,15 @@ class BridgeParams:
 
     def __post_init__(self) -> None:
         _non_negative(self, "r_on_path_ohm", "diode_drop_v")
+        # pwm_hz first: the pulse shifts are checked against its period
+        _positive(self, "timer_clock_hz", "pwm_hz", "current_limit_a")
         for name in ("pulse_shift_with_current_us", "pulse_shift_against_current_us"):
             v = getattr(self, name)
+            with np.errstate(over="ignore"):  # a huge finite shift times pwm_hz is inf: refused
+                shorter = bool(np.all(np.abs(np.asarray(v, dtype=float)) * self.pwm_hz < 1e6))
             _check(
-                self,
-                name,
-                _finite(v) and bool(np.all(np.abs(np.asarray(v)) * self.pwm_hz < 1e6)),
-                "must be finite and shorter than the PWM period",
+                self, name, _finite(v) and shorter, "must be finite and shorter than the PWM period"
             )
-        _positive(self, "timer_clock_hz", "pwm_hz", "current_limit_a")
         _positive(self, "ov_lockout_v", "ov_release_v", "uv_lockout_v", "uv_release_v")
         _check(
             self,
