@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from sim.commands._common import output_dir
+from sim.commands._common import integer, output_dir
 
 HELP = "reproduce the paper's Fig. 6-8 / Table 1 and seed 002's tables: PNGs and REPORT.md"
 
@@ -26,6 +26,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--paper-only", action="store_true",
         help="only Fig. 6-8 (no seed 002 tables, S-curve or look-ahead runs)",
     )  # fmt: skip
+    parser.add_argument(
+        "--sensitivity", action="store_true",
+        help="the full sensitivity study: Fig. 6 over 27 motors (R, Kt, J x0.7/1/1.3) with "
+        "every plant effect on every motor, Fig. 7-8 as run (default: a cheap form)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--retune", choices=("classic", "de"), default="classic",
+        help="how the study re-tunes each motor's gains: the tuner's classic baseline "
+        "(default, instant) or its differential evolution (seconds per motor)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--noise-copies", type=integer(1, 64), default=None, metavar="N",
+        help="noise realisations of the study's nominal runs, 1..64 (default 3; 5 with "
+        "--sensitivity)",
+    )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress display or summary")
 
 
@@ -34,7 +49,13 @@ def execute(args: argparse.Namespace):
     from sim.reproduce import reproduce
 
     return reproduce(
-        args.out, quick=args.quick, extras=not args.paper_only, show_progress=not args.quiet
+        args.out,
+        quick=args.quick,
+        extras=not args.paper_only,
+        show_progress=not args.quiet,
+        sensitivity=args.sensitivity,
+        retune=args.retune,
+        noise_copies=args.noise_copies,
     )
 
 

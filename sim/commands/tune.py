@@ -98,9 +98,7 @@ def _tune(args: argparse.Namespace) -> int:
     log = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=sys.stderr))
 
     sets: dict[str, GainSet] = {"config": start}
-    sets["classic"] = baselines.symmetric_optimum(
-        bench, baselines.current_from_bandwidth(bench, start)
-    )
+    sets["classic"] = baselines.classic(bench, start)
     if not args.no_relay:
         from sim.tuning.relay import relay_tune
 

@@ -4,12 +4,14 @@ draw the figures, write REPORT.md.
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from sim.reproduce import (
+    band,
     fig6,
     fig7,
     fig8,
@@ -32,6 +34,7 @@ FIGURES = (
     "lookahead.png",
     "programs.png",
     "stream.png",
+    "fig6_band.png",
 )
 # The decoded telemetry of the paper's runs, as CSV (the columns of `monitor --csv`).
 TELEMETRY_DIR = "telemetry"
@@ -59,6 +62,9 @@ def reproduce(
     extras: bool = True,
     show_progress: bool = True,
     stream: Any = None,
+    sensitivity: bool = False,
+    retune: str = "classic",
+    noise_copies: int | None = None,
 ) -> ReproduceOutput:
     """Run every experiment and write the figures and REPORT.md into ``out_dir``.
 
@@ -66,6 +72,11 @@ def reproduce(
         quick: the time-scaled forms (``experiments.scale_quick``), four times shorter.
         extras: also seed 002's tables, the S-curve runs and the look-ahead program.
         show_progress: a progress display per run on ``stream`` (default stderr).
+        sensitivity: the full sensitivity study (``sim.reproduce.band.run_sensitivity``
+            with ``full=True``) instead of its cheap form.
+        retune: how each motor of the study is re-tuned, ``"classic"`` or ``"de"``.
+        noise_copies: noise realisations of the study's nominal members (default 3, or 5
+            with ``sensitivity``).
     """
     wall0 = time.monotonic()
     out = Path(out_dir)
@@ -90,6 +101,16 @@ def reproduce(
     traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
     for stem, trace in traces:
         paths.append(write_telemetry_csv(trace, tel / f"{stem}.csv"))
+    if show_progress:
+        print(
+            f"[sensitivity] {'full' if sensitivity else 'cheap'} study, {retune} re-tune...",
+            file=stream if stream is not None else sys.stderr,
+        )
+    sens = band.run_sensitivity(
+        quick=quick, full=sensitivity, retune_how=retune, noise_copies=noise_copies
+    )
+    band.plot(sens.band, out / "fig6_band.png")
+    paths.append(out / "fig6_band.png")
     s2 = sc = la = pg = None
     if extras:
         s2 = seed002.run(runner)
@@ -127,6 +148,7 @@ def reproduce(
         wall_s=wall_s,
         figures=tuple(p.name for p in paths if p.suffix == ".png"),
         programs=pg,
+        sensitivity=sens,
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

@@ -14,7 +14,16 @@ from dataclasses import dataclass
 
 from firmware_model.units import GEAR_RATIO, TOTAL_RATIO
 from serial_protocol import frame
-from sim.reproduce import fig6, fig7, fig8, lookahead_demo, programs_demo, scurve_extras, seed002
+from sim.reproduce import (
+    band,
+    fig6,
+    fig7,
+    fig8,
+    lookahead_demo,
+    programs_demo,
+    scurve_extras,
+    seed002,
+)
 from sim.reproduce.experiments import Trace
 from sim.reproduce.metrics import RunMetrics
 
@@ -37,6 +46,7 @@ class ReportInputs:
     wall_s: float
     figures: tuple[str, ...]
     programs: programs_demo.ProgramsResult | None = None
+    sensitivity: band.SensitivityResult | None = None
 
 
 def _f(x: float | None, digits: int = 1) -> str:
@@ -710,5 +720,7 @@ def write_report(inp: ReportInputs, path) -> None:
         lines += _lookahead(inp.lookahead)
     if inp.programs is not None:
         lines += _programs(inp.programs)
+    if inp.sensitivity is not None:
+        lines += band.report_lines(inp.sensitivity, section=8)
     with open(path, "w", encoding="utf-8") as fh:
         fh.write("\n".join(lines))

@@ -71,30 +71,37 @@ def table1_experiment(a_max: Sequence[float] = TABLE1_A_MAX) -> Any:
     return exp
 
 
-def fig8_metrics(log: RunLog) -> dict[str, float]:
-    """Tracking of a Fig. 8 run: largest position and velocity error, the lag (position
-    error / commanded speed, median over the ticks above 100 deg/s), peak current."""
+def fig8_metrics(log: RunLog, from_t_s: float = 0.0) -> dict[str, float]:
+    """Tracking of a Fig. 8 run (or of any run from ``from_t_s`` on): largest position and
+    velocity error, the lag (position error / commanded speed, median over the ticks above
+    100 deg/s), peak current."""
+    k0 = int(np.searchsorted(log.t_s, from_t_s))
     # In the firmware's frame (its measured position): the frame starts where the first
     # reading puts it, a whole motor turn (4.5 deg) from the plant's zero when a noisy first
     # reading wraps to 16383.
-    err = log.sp_pos_deg - log.pos_deg
-    moving = np.abs(log.sp_vel_dps) > 100.0
+    sp_vel = log.sp_vel_dps[k0:]
+    err = log.sp_pos_deg[k0:] - log.pos_deg[k0:]
+    moving = np.abs(sp_vel) > 100.0
     lag_ms = math.nan  # never above 100 deg/s
     if np.any(moving):
-        lag_ms = float(np.median(np.abs(err[moving] / log.sp_vel_dps[moving]))) * 1e3
+        lag_ms = float(np.median(np.abs(err[moving] / sp_vel[moving]))) * 1e3
     return {
         "max following error (deg)": float(np.max(np.abs(err))),
-        "max velocity error (deg/s)": float(np.max(np.abs(log.sp_vel_dps - log.true_vel_dps))),
+        "max velocity error (deg/s)": float(np.max(np.abs(sp_vel - log.true_vel_dps[k0:]))),
         "lag (ms)": lag_ms,
-        "peak current (A)": float(np.max(np.abs(log.current_a))),
+        "peak current (A)": float(np.max(np.abs(log.current_a[k0:]))),
         "faults": float(np.count_nonzero(np.diff(log.fault) != 0)),
     }
 
 
-def fig6_metrics(log: RunLog, target_deg: float = 3000.0) -> dict[str, float]:
-    """The Fig. 6 step: overshoot and its time, the first time within 0.1 deg for good,
-    the peak current."""
+def fig6_metrics(
+    log: RunLog, target_deg: float = 3000.0, current_limit_a: float = 5.0
+) -> dict[str, float]:
+    """The Fig. 6 step: when the braking starts (the velocity loop first asks for half the
+    current limit against the motion), the overshoot and its time, the first time within
+    0.1 deg for good, the peak current."""
     beyond = log.pos_deg - target_deg  # the firmware's frame, as fig8_metrics
+    braking = np.flatnonzero(log.current_ref_a <= -0.5 * current_limit_a)
     k = int(np.argmax(beyond))
     peak_t = float(log.t_s[k]) if beyond[k] > 0.0 else math.nan
     off = np.abs(beyond) > 0.1
@@ -102,6 +109,7 @@ def fig6_metrics(log: RunLog, target_deg: float = 3000.0) -> dict[str, float]:
     if not off[-1]:
         settled = float(log.t_s[np.nonzero(off)[0][-1] + 1]) if np.any(off) else 0.0
     return {
+        "braking from (s)": float(log.t_s[braking[0]]) if braking.size else math.nan,
         "overshoot (deg)": float(max(beyond[k], 0.0)),
         "overshoot at (s)": peak_t,
         "settled within 0.1 deg at (s)": settled,

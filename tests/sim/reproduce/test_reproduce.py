@@ -16,7 +16,7 @@ import pytest
 
 from serial_protocol.telemetry_csv import TELEMETRY_CSV_COLUMNS
 from sim.commands import reproduce as reproduce_cmd
-from sim.reproduce import FIGURES, fig6, fig8
+from sim.reproduce import FIGURES, band, fig6, fig8
 from sim.reproduce.experiments import QUICK_TIME_SCALE
 from sim.reproduce.metrics import ARRIVAL_TOL_DEG, replan_steps
 from sim.reproduce.pipeline import TELEMETRY_DIR
@@ -281,3 +281,39 @@ def test_fig7_s3_is_not_hidden_under_s4(output):
     s3, s4 = wide[2], wide[3]
     # drawn later, S4 is narrower: where they coincide, S3 shows on both sides of it
     assert s3.get_linewidth() > s4.get_linewidth() + 0.5
+
+
+def test_report_states_which_effects_matter_per_figure(output):
+    """Section 8 (issue 13 §3): one part per figure, naming every effect and motor factor,
+    with the values of the runs behind it."""
+    sens = output.inputs.sensitivity
+    text = (output.out_dir / "REPORT.md").read_text(encoding="utf-8")
+    section = text[text.index("## 8. Which effects and parameters matter") :]
+    for heading in ("### Fig. 6", "### Fig. 7", "### Fig. 8"):
+        assert heading in section
+    for effect in band.EFFECTS:
+        assert section.count(effect) >= 3, effect  # in each figure's table
+    for factor in ("R×0.7", "R×1.3", "Kt×0.7", "Kt×1.3", "J×0.7", "J×1.3"):
+        assert factor in section
+    assert "fig6_band.png" in section and "locks the bridge out" in section
+    # The numbers are the runs': the nominal rows (mean ± sd over the noise realisations).
+    st = sens.band.study
+    nominal = st.select(motor=band.Motor(), gains="fixed", effect=None)
+    assert len(nominal) == sens.noise_copies == 3
+    over = st.values("overshoot (deg)", nominal)
+    mean, sd, _, _ = band.spread(over)
+    assert f"| {mean:.4g} ± {sd:.2g} |" in section
+    assert sd > 0.0  # the copies drew different noise
+    # ... and the band's nominal member is the reproduction's own Fig. 6 step (same bench,
+    # other noise realisations; both in the firmware's frame).
+    assert mean == pytest.approx(output.inputs.fig6.step_metrics.overshoot_deg, abs=0.2)
+    for sub in sens.studies:
+        idx = sub.select(motor=band.Motor(), gains="fixed", effect=None)
+        m, s, _, _ = band.spread(sub.values("max following error (deg)", idx))
+        assert f"| {m:.4g} ± {s:.2g} |" in section
+    # Re-tuning narrows the band: no re-tuned motor trips, and the widest overshoot of the
+    # re-tuned motors is below the widest of the fixed ones.
+    fixed = st.select(gains="fixed", effect=None, copy=0)
+    retuned = st.select(gains="classic", effect=None, copy=0)
+    assert not any(st.metrics[k]["fault code"] for k in retuned)
+    assert max(st.values("overshoot (deg)", retuned)) < max(st.values("overshoot (deg)", fixed))

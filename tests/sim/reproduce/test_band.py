@@ -1,0 +1,124 @@
+"""Issue 13 §3: the Fig. 6 band and the per-figure effects study (``sim.reproduce.band``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from sim.loop import apply_overrides, run
+from sim.reproduce import band
+from sim.reproduce.experiments import load, with_duration
+from sim.tuning import linear
+from sim.tuning.gains import GainSet
+
+
+@pytest.fixture(scope="module")
+def fig6_short():
+    """Fig. 6's step, 4 s (the braking is at ~3.1 s), without encoder noise so that a
+    member of a batch and a one-axis run draw the same (no) noise."""
+    exp = with_duration(load("fig6"), 4.0)
+    return dataclasses.replace(
+        exp, bench=apply_overrides(exp.bench, {"encoder.noise_rms_lsb": 0.0})
+    )
+
+
+def test_designs():
+    full = band.factorial_design()
+    assert len(full) == 27 == len(set(full)) and full[0].nominal
+    assert {m.r for m in full} == {m.kt for m in full} == {m.j for m in full} == {0.7, 1.0, 1.3}
+    comp = band.composite_design()
+    assert len(comp) == 15 == len(set(comp)) and comp[0].nominal
+    assert set(comp) < set(full)
+    assert set(band.one_at_a_time()) < set(comp)
+    # the corners are in both designs (the envelope of a monotone response is there)
+    corners = {band.Motor(r, k, j) for r in (0.7, 1.3) for k in (0.7, 1.3) for j in (0.7, 1.3)}
+    assert corners < set(comp)
+
+
+def test_motor_overrides_scale_the_bench_motor_and_keep_kt_equal_ke(fig6_short):
+    m = fig6_short.bench.plant.motor
+    ov = band.Motor(r=0.7, kt=1.3, j=0.7).overrides(fig6_short.bench)
+    assert ov["motor.r_ohm"] == pytest.approx(0.7 * m.r_ohm)
+    assert ov["motor.kt_nm_a"] == ov["motor.ke_v_s_rad"] == pytest.approx(1.3 * m.kt_nm_a)
+    assert ov["motor.j_kgm2"] == pytest.approx(0.7 * m.j_kgm2)
+
+
+def test_the_batch_members_equal_one_axis_runs(fig6_short):
+    """batch = N x one: every member of a study (its motor, its re-tuned firmware, its
+    effect; the bus-model member in its own batch) computes what a one-axis run with the
+    same parameters computes."""
+    bench = fig6_short.bench
+    members = [
+        band.Member(band.Motor(kt=0.7), "fixed"),
+        band.Member(band.Motor(r=1.3, j=0.7), "classic"),
+        band.Member(band.Motor(kt=1.3), "model"),
+        band.Member(effect="stiction (motor 5 mN·m, platter 0.45 N·m)"),
+        band.Member(effect="bus model + chopper 10 Ω at 26.5 V"),
+    ]
+    tuned = {(m.motor, m.gains): band.retune(bench, m.motor, m.gains) for m in members}
+    logs = band.run_members(fig6_short, members, tuned)
+    assert len(logs) == len(members)
+    overshoots = []
+    for member, log in zip(members, logs, strict=True):
+        ov = band.member_overrides(bench, member, tuned)
+        single = run(fig6_short, overrides={**ov, "telemetry.decimation": 0}).log
+        for col in ("pos_deg", "vel_dps", "current_ref_a", "duty", "fault"):
+            np.testing.assert_array_equal(getattr(log, col), getattr(single, col), err_msg=col)
+        for col in ("true_pos_deg", "current_a", "bus_v"):
+            np.testing.assert_allclose(getattr(log, col), getattr(single, col), atol=1e-9)
+        overshoots.append(float(np.max(log.pos_deg)) - 3000.0)
+    # the members really differ (the arrays reached them)
+    assert len({round(o, 3) for o in overshoots}) == len(members)
+
+
+def test_retuned_firmware_is_its_motors_and_passes_the_linear_gate():
+    bench = load("fig6").bench
+    nominal = band.retune(bench, band.Motor(), "model")
+    fw = bench.firmware
+    # the nominal motor's model is the firmware's default one (to the config's rounding)
+    assert nominal["controller.current.resistance_ohm"] == fw.current.resistance_ohm
+    assert nominal["controller.current.back_emf_v_per_dps"] == pytest.approx(
+        fw.current.back_emf_v_per_dps, rel=1e-5
+    )
+    assert nominal["controller.velocity.acc_ff_a_per_dps2"] == pytest.approx(
+        fw.velocity.acc_ff_a_per_dps2, rel=1e-5
+    )
+    assert band.retune(bench, band.Motor(kt=0.7), "fixed") == {}
+    spec = linear.MarginSpec()
+    gains = set()
+    for motor in band.factorial_design():
+        ov = band.retune(bench, motor, "classic")
+        own = apply_overrides(bench, {**motor.overrides(bench), **ov})
+        g = GainSet.from_bench(own)
+        assert linear.rejection_reasons(own, g, spec) == [], motor.label
+        gains.add(g.kp_v_a_per_dps)
+        # back-EMF and inertia feed-forward follow Kt and J
+        assert ov["controller.current.back_emf_v_per_dps"] == pytest.approx(
+            nominal["controller.current.back_emf_v_per_dps"] * motor.kt
+        )
+    assert len(gains) == 9  # the velocity gain follows J / Kt (9 distinct ratios)
+
+
+def test_first_fault_and_spread():
+    log = run(with_duration(load("fig6"), 0.5), overrides={"current_sense.k_ilis": 3000.0}).log
+    f = band.first_fault(log)
+    assert f["fault code"] > 0 and 0.0 < f["fault at (s)"] < 0.5
+    assert band.first_fault(run(with_duration(load("fig6"), 0.1)).log) == {
+        "fault code": 0.0,
+        "fault at (s)": pytest.approx(np.nan, nan_ok=True),
+    }
+    mean, sd, lo, hi = band.spread([1.0, 3.0, float("nan")])
+    assert (mean, lo, hi) == (2.0, 1.0, 3.0) and sd == pytest.approx(2**0.5)
+
+
+def test_bad_member_and_study_arguments_are_refused():
+    with pytest.raises(ValueError, match="gains = 'pid'"):
+        band.Member(gains="pid")
+    with pytest.raises(ValueError, match="effect = 'magic'"):
+        band.Member(effect="magic")
+    with pytest.raises(ValueError, match="retune = 'model'"):
+        band.run_sensitivity(retune_how="model")
+    with pytest.raises(ValueError, match="noise copies = 0"):
+        band.run_sensitivity(noise_copies=0)
