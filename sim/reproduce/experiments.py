@@ -23,7 +23,7 @@ import numpy as np
 import bench_configs
 from serial_protocol.messages import Ack, Nack, Profile
 from sim.config import Experiment, ScriptedCommand, load_experiment
-from sim.loop import RunResult, run
+from sim.loop import RunLog, RunResult, run
 
 __all__ = [
     "QUICK_TIME_SCALE",
@@ -35,6 +35,7 @@ __all__ = [
     "run_trace",
     "scale_quick",
     "to_scurve",
+    "trace_from_log",
     "with_duration",
     "write_telemetry_csv",
 ]
@@ -240,6 +241,33 @@ def trace_from_result(name: str, exp: Experiment, result: RunResult) -> Trace:
     )
 
 
+def trace_from_log(name: str, exp: Experiment, log: RunLog) -> Trace:
+    """A :class:`Trace` from the simulator's log of one member, one row per tick: what its
+    telemetry would carry, unrounded (a batch sends the telemetry of member 0 only). No
+    replies and no link counters."""
+    dt_s = exp.bench.dt_s
+    applied = _command_ticks(exp, dt_s)
+    return Trace(
+        name=name,
+        dt_s=dt_s,
+        t_s=np.asarray(log.t_s, dtype=float),
+        sp_pos_deg=log.sp_pos_deg,
+        sp_vel_dps=log.sp_vel_dps,
+        pos_deg=log.pos_deg,
+        vel_dps=log.vel_dps,
+        current_a=log.current_meas_a,
+        duty=log.duty,
+        state=np.asarray(log.state, dtype=np.int64),
+        fault=np.asarray(log.fault, dtype=np.int64),
+        command_t_s=tuple(tick * dt_s for tick, _ in applied),
+        command_target_deg=tuple(_target_deg(c) for _, c in applied),
+        command_a_max_dps2=tuple(float(c.get("a_max_dps2")) for _, c in applied),
+        replies=(),
+        true_t_s=np.asarray(log.t_s, dtype=float),
+        true_current_a=log.current_a,
+    )
+
+
 def run_trace(
     name: str,
     exp: Experiment,
@@ -279,6 +307,8 @@ class Runner:
         self.seed = seed
         self.count = 0
         self.ticks = 0
+        #: Every experiment run so far, by its name (to run it again, e.g. in noise copies).
+        self.experiments: dict[str, Experiment] = {}
 
     def prepare(self, exp: Experiment) -> Experiment:
         """The form of ``exp`` this runner runs (quick or as written)."""
@@ -289,6 +319,7 @@ class Runner:
         from sim.progress import Progress
 
         self.count += 1
+        self.experiments[name] = exp
         label = f"[{self.count}/{max(self.total_runs, self.count)}] {name}"
         n_ticks = max(1, int(round(exp.duration_s / exp.bench.dt_s)))
         with Progress(label, n_ticks, stream=self.stream, enabled=self.show_progress) as bar:

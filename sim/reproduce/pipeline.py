@@ -21,6 +21,7 @@ from sim.reproduce import (
     scurve_extras,
     seed002,
 )
+from sim.reproduce import sensitivity as sensitivity_mod
 from sim.reproduce.experiments import Runner, load, write_telemetry_csv
 
 __all__ = ["FIGURES", "TELEMETRY_DIR", "ReproduceOutput", "reproduce"]
@@ -110,6 +111,20 @@ def reproduce(
         quick=quick, full=sensitivity, retune_how=retune, noise_copies=noise_copies
     )
     band.plot(sens.band, out / "fig6_band.png")
+    # Error bars for the metrics of REPORT.md section 4: each paper run again in noise
+    # copies (one batch per run, measured as the run itself).
+    noise_runs = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
+    noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
+    noise = {
+        trace.name: sensitivity_mod.noise_spread(
+            trace.name,
+            runner.experiments[trace.name],
+            max(sens.noise_copies, 2),
+            limit_a,
+            from_t_s,
+        )
+        for trace, from_t_s in noise_runs
+    }
     paths.append(out / "fig6_band.png")
     s2 = sc = la = pg = None
     if extras:
@@ -149,6 +164,7 @@ def reproduce(
         figures=tuple(p.name for p in paths if p.suffix == ".png"),
         programs=pg,
         sensitivity=sens,
+        noise=noise,
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

@@ -9,7 +9,7 @@ numbers they explain.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from firmware_model.units import GEAR_RATIO, TOTAL_RATIO
@@ -47,6 +47,8 @@ class ReportInputs:
     figures: tuple[str, ...]
     programs: programs_demo.ProgramsResult | None = None
     sensitivity: band.SensitivityResult | None = None
+    #: run name -> RunMetrics field -> (mean, sd) over noise realisations
+    noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None
 
 
 def _f(x: float | None, digits: int = 1) -> str:
@@ -250,25 +252,35 @@ def _consistency(inp: ReportInputs) -> list[str]:
     return lines
 
 
-def _metrics_table(runs: Sequence[tuple[RunMetrics, float]]) -> list[str]:
+def _metrics_table(
+    runs: Sequence[tuple[RunMetrics, float]],
+    noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
+) -> list[str]:
     header = [
         "run", "largest planned velocity step (deg/s per tick)",
         "largest measured velocity step (deg/s per tick)", "overshoot (deg)",
         "peak current decoded / true (A), limit", "RMS / max tracking error (deg)", "faults",
         "telemetry gaps",
     ]  # fmt: skip
+    noise = noise or {}
+
+    def cell(m: RunMetrics, name: str, scale: float, digits: int) -> str:
+        text = _f(getattr(m, name) * scale, digits)
+        sd = noise.get(m.name, {}).get(name)
+        return text if sd is None else f"{text} ± {sd[1] * scale:.2g}"
+
     rows = []
     for m, k in runs:
         rows.append(
             [
                 m.name,
-                _f(m.max_sp_vel_step_dps * k, 3),
-                _f(m.max_vel_step_dps * k, 3),
-                _f(m.overshoot_deg * k * k, 3),
-                f"{_f(m.peak_current_a, 2)} / {_f(m.peak_true_current_a, 2)}, "
-                f"{m.current_limit_a:g}",
-                f"{_f(m.rms_tracking_error_deg * k * k, 3)} / "
-                f"{_f(m.max_tracking_error_deg * k * k, 3)}",
+                cell(m, "max_sp_vel_step_dps", k, 3),
+                cell(m, "max_vel_step_dps", k, 3),
+                cell(m, "overshoot_deg", k * k, 3),
+                f"{cell(m, 'peak_current_a', 1.0, 2)} / {cell(m, 'peak_true_current_a', 1.0, 2)}"
+                f", {m.current_limit_a:g}",
+                f"{cell(m, 'rms_tracking_error_deg', k * k, 3)} / "
+                f"{cell(m, 'max_tracking_error_deg', k * k, 3)}",
                 ", ".join(str(f) for f in m.faults) or "none",
                 str(m.frame_gaps),
             ]
@@ -705,7 +717,17 @@ def write_report(inp: ReportInputs, path) -> None:
         ),
         "",
     ]
-    lines += _metrics_table(runs)
+    if inp.noise:
+        copies = inp.sensitivity.noise_copies if inp.sensitivity is not None else 0
+        lines += [
+            "± is the standard deviation over "
+            + (f"{copies} " if copies else "")
+            + "encoder-noise realisations of the same run (one batch; measured on its log, "
+            "not on telemetry, so the decoded current is the unrounded reading), where the "
+            "run has them; the values are the decoded run's.",
+            "",
+        ]
+    lines += _metrics_table(runs, inp.noise)
     lines += _replan_steps(inp)
     traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
     traces += [r.trace for r in inp.fig7.runs]

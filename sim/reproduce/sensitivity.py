@@ -32,6 +32,7 @@ __all__ = [
     "TABLE1_A_MAX",
     "fig6_metrics",
     "fig8_metrics",
+    "noise_spread",
     "plan_states_per_move",
     "table1_experiment",
 ]
@@ -116,6 +117,38 @@ def fig6_metrics(
         "peak current (A)": float(np.max(np.abs(log.current_a))),
         "faults": float(np.count_nonzero(np.diff(log.fault) != 0)),
     }
+
+
+def noise_spread(
+    name: str,
+    exp: Any,
+    copies: int,
+    current_limit_a: float,
+    from_t_s: float | None = None,
+    seed: int = 0,
+) -> dict[str, tuple[float, float]]:
+    """The run ``exp`` in ``copies`` noise realisations (one batch: every member draws its
+    own encoder noise), measured as the reproduction measures its runs
+    (``sim.reproduce.metrics.measure`` from ``from_t_s`` on): ``{field: (mean, standard
+    deviation)}`` of every numeric :class:`~sim.reproduce.metrics.RunMetrics` field."""
+    import dataclasses as dc
+
+    from sim.reproduce.experiments import trace_from_log
+    from sim.reproduce.metrics import measure
+
+    if copies < 2:
+        raise ValueError(f"copies = {copies!r}: need at least 2 for a spread")
+    result = run(exp, batch=copies, seed=seed, overrides={"telemetry.decimation": 0})
+    rows = [
+        measure(trace_from_log(name, exp, result.log.member(k)), current_limit_a, from_t_s)
+        for k in range(copies)
+    ]
+    out = {}
+    for f in dc.fields(rows[0]):
+        vals = [getattr(r, f.name) for r in rows]
+        if all(isinstance(v, float) for v in vals):
+            out[f.name] = (statistics.fmean(vals), statistics.stdev(vals))
+    return out
 
 
 def _spread(rows: list[dict[str, float]]) -> dict[str, tuple[float, float, float, float]]:

@@ -122,3 +122,38 @@ def test_bad_member_and_study_arguments_are_refused():
         band.run_sensitivity(retune_how="model")
     with pytest.raises(ValueError, match="noise copies = 0"):
         band.run_sensitivity(noise_copies=0)
+
+
+def test_trace_from_log_measures_as_the_decoded_telemetry():
+    """The noise copies of REPORT.md section 4 are measured on the log (a batch sends the
+    telemetry of member 0 only): on one run, the log and the decoded frames give the same
+    metrics up to the wire's rounding."""
+    from sim.reproduce.experiments import trace_from_log, trace_from_result
+    from sim.reproduce.metrics import measure
+
+    exp = with_duration(load("fig6"), 4.0)
+    result = run(exp)
+    tel = measure(trace_from_result("step", exp, result), 5.0)
+    log = measure(trace_from_log("step", exp, result.log), 5.0)
+    assert log.overshoot_deg == pytest.approx(tel.overshoot_deg, abs=1e-3)
+    assert log.max_tracking_error_deg == pytest.approx(tel.max_tracking_error_deg, abs=1e-3)
+    assert log.max_vel_step_dps == pytest.approx(tel.max_vel_step_dps, abs=1e-3)
+    assert log.peak_current_a == pytest.approx(tel.peak_current_a, abs=0.01)
+    assert log.peak_true_current_a == tel.peak_true_current_a
+    assert log.arrival_t_s == tel.arrival_t_s and log.faults == tel.faults
+
+
+def test_noise_spread_is_the_spread_of_the_copies():
+    from sim.reproduce.sensitivity import noise_spread
+
+    exp = with_duration(load("fig6"), 4.0)
+    spread3 = noise_spread("step", exp, 3, 5.0)
+    mean, sd = spread3["overshoot_deg"]
+    assert 40.0 < mean < 45.0 and 0.0 < sd < 0.5  # the copies drew different noise
+    assert spread3["max_sp_vel_step_dps"][1] == 0.0  # the setpoint has no noise
+    quiet = dataclasses.replace(
+        exp, bench=apply_overrides(exp.bench, {"encoder.noise_rms_lsb": 0.0})
+    )
+    assert noise_spread("step", quiet, 2, 5.0)["overshoot_deg"][1] == 0.0
+    with pytest.raises(ValueError, match="copies = 1"):
+        noise_spread("step", exp, 1, 5.0)
