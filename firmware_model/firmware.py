@@ -36,6 +36,7 @@ from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import (
     C_BUS_ADC,
+    P_DERATE,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -45,6 +46,7 @@ from firmware_model.laws.layout import (
 )
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
+from firmware_model.thermal import protection_constants
 from planner.online import OnlinePlanner
 from planner.profile import build_profile
 from serial_protocol import frame
@@ -285,9 +287,14 @@ class Firmware:
         # The same arrays as the compiled tick's ``sf`` (firmware_model.tick.SF_*): they are
         # only ever changed in place.
         self.sensor_mismatch_peak_deg = np.zeros(n)
+        # The thermal protection (firmware_model.thermal): its estimate of the winding and
+        # housing temperatures from power-up at the assumed ambient, and its constants.
+        self._thermal_est = np.full((n, 2), float(params.safety.thermal_ambient_c))
+        self._thermal_tp = protection_constants(params.safety, self.dt_s)
         self._sf = (
             self._mismatch_deg, self._r_ohm, self._emf_v_per_dps, self._brake_ticks,
             self._diag_ticks, self._diag_errors, self.sensor_mismatch_peak_deg,
+            self._thermal_est, self._thermal_tp,
         )  # fmt: skip
         # Rare events count here; the per-tick TX counters are plain ints (see counters).
         self._counts: dict[str, int] = {
@@ -481,6 +488,20 @@ class Firmware:
         return self._fault_cache[1]
 
     @property
+    def thermal_estimate_c(self) -> Any:
+        """The thermal protection's estimate of the winding temperature (degC; ``(N,)`` in
+        batch): from the measured current and the firmware's constants only."""
+        est = self._thermal_est[:, 0].copy()
+        return float(est[0]) if self._scalar else est
+
+    @property
+    def current_limit_derated_a(self) -> Any:
+        """The current limit in effect after the thermal protection's derating (A;
+        ``(N,)`` in batch)."""
+        lim = self.law.i_limit_a * (1.0 - self.law.P[P_DERATE])
+        return float(lim[0]) if self._scalar else lim
+
+    @property
     def telemetry_decimation(self) -> int:
         """Ticks between telemetry frames actually used (0 = off); see ``counters``."""
         return self._decimation
@@ -660,6 +681,11 @@ class Firmware:
         self._trip(live & runaway, Fault.SENSOR_MISMATCH, self._mismatch_deg.copy(),
                    float(s.sensor_mismatch_deg))  # fmt: skip
         live &= ~runaway
+        if s.thermal_protection:
+            hot = self._thermal_est[:, 0] >= s.thermal_trip_c
+            self._trip(live & hot, Fault.THERMAL, self._thermal_est[:, 0].copy(),
+                       float(s.thermal_trip_c))  # fmt: skip
+            live &= ~hot
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel, s.over_speed_dps)
         live &= ~over

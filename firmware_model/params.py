@@ -370,6 +370,14 @@ class SafetyParams(_Checked):
             through its own resistance; no sensor needed) for this long, then the bridge
             off. 0 = the bridge off at once (the motor coasts). Over-current always turns
             the bridge off at once.
+        thermal_protection: the firmware's estimate of the winding temperature
+            (``firmware_model.thermal.thermal_protection``: the two-node network of
+            ``firmware_model.thermal`` fed with ``i_meas^2 R(T)`` into the winding and
+            ``thermal_no_load_current_a`` times the back-EMF into the housing, from
+            ``thermal_ambient_c`` at power-up). From ``thermal_derate_c`` the current limit
+            falls linearly to ``thermal_derate_min_ratio`` of itself at ``thermal_trip_c``,
+            where the ``THERMAL`` trip latches. The network's constants are the firmware's
+            copy of the motor's (``thermal_r_*``, ``thermal_tau_*``, ``thermal_alpha_cu_per_k``).
     """
 
     over_current_a: float = _f(7.5, _rng(0.01, 60.0))
@@ -386,6 +394,24 @@ class SafetyParams(_Checked):
     sensor_mismatch_tolerance_ratio: float = _f(0.25, _rng(0.0, 10.0))
     encoder_diag_ticks: int = _f(3, _irng(1, 1000))
     brake_s: float = _f(0.4, _rng(0.0, 10.0))
+    thermal_protection: bool = _f(True, _boolean)
+    thermal_derate_c: float = _f(100.0, _rng(-40.0, 250.0))
+    thermal_trip_c: float = _f(120.0, _rng(-40.0, 250.0))
+    thermal_derate_min_ratio: float = _f(0.5, _rng(0.0, 1.0))
+    thermal_ambient_c: float = _f(40.0, _rng(-40.0, 125.0))
+    thermal_alpha_cu_per_k: float = _f(0.00393, _rng(0.0, 0.01))
+    thermal_r_winding_housing_k_w: float = _f(2.5, _rng(0.01, 100.0))
+    thermal_r_housing_ambient_k_w: float = _f(6.0, _rng(0.01, 100.0))
+    thermal_tau_winding_s: float = _f(30.0, _rng(0.1, 3600.0))
+    thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
+    thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
+
+    def _check_relations(self) -> None:
+        if not self.thermal_derate_c < self.thermal_trip_c:
+            _fail(
+                "thermal_derate_c", self.thermal_derate_c,
+                f"must be below thermal_trip_c ({self.thermal_trip_c:g})",
+            )  # fmt: skip
 
 
 @dataclass(frozen=True)

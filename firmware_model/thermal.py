@@ -23,7 +23,10 @@ import numpy as np
 
 from firmware_model.kernel_cache import kernel
 
-__all__ = ["N_NET", "network_step", "network_zoh", "steady_rise_k"]
+__all__ = [
+    "N_NET", "N_TP", "network_step", "network_zoh", "protection_constants", "steady_rise_k",
+    "thermal_protection",
+]  # fmt: skip
 
 # A step's numbers: Phi (2 x 2, row-major), then Gamma (2 x 3 row-major: P_w, P_h, T_a).
 N_NET = 10
@@ -75,3 +78,60 @@ def network_step(temps, j, p_w, p_h, t_a, net):
     tw, th = temps[j, 0], temps[j, 1]
     temps[j, 0] = net[0] * tw + net[1] * th + net[4] * p_w + net[5] * p_h + net[6] * t_a
     temps[j, 1] = net[2] * tw + net[3] * th + net[7] * p_w + net[8] * p_h + net[9] * t_a
+
+
+# The thermal protection's constants (``tp``, shared by the members): the network's step
+# over one servo tick (``N_NET``), then these.
+(
+    TP_ON, TP_ALPHA, TP_REF_C, TP_AMBIENT_C, TP_NO_LOAD_A, TP_DERATE_C, TP_TRIP_C, TP_MIN_RATIO,
+) = range(N_NET, N_NET + 8)  # fmt: skip
+N_TP = N_NET + 8
+# The temperature the firmware's resistance ([controller.current] resistance_ohm) is given at.
+REFERENCE_C = 20.0
+
+
+def protection_constants(safety: object, dt_s: float) -> np.ndarray:
+    """``tp`` of ``thermal_protection`` from ``[safety]`` (``SafetyParams``) at tick ``dt_s``."""
+    s = safety
+    tp = np.zeros(N_TP)
+    tp[:N_NET] = network_zoh(
+        s.thermal_r_winding_housing_k_w, s.thermal_r_housing_ambient_k_w,
+        s.thermal_tau_winding_s, s.thermal_tau_housing_s, dt_s,
+    )  # fmt: skip
+    tp[N_NET:] = (
+        1.0 if s.thermal_protection else 0.0, s.thermal_alpha_cu_per_k, REFERENCE_C,
+        s.thermal_ambient_c, s.thermal_no_load_current_a, s.thermal_derate_c, s.thermal_trip_c,
+        s.thermal_derate_min_ratio,
+    )  # fmt: skip
+    return tp
+
+
+@kernel(error_model="numpy")
+def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, est, tp, derate):
+    """The firmware's thermal protection, one servo tick for every member: its estimate of
+    the winding and housing temperatures ``est`` (``(N, 2)``, degC) advances through the
+    network with ``i_meas^2 R(T_est)`` into the winding (the current it measured, or its
+    model's where the sense is blind) and the no-load current times the back-EMF (``emf
+    * |v|``, the friction loss a datasheet's no-load current stands for) into the housing;
+    ``derate[j]`` (the law's ``P_DERATE``) becomes the fraction of the current limit taken
+    away: 0 up to ``TP_DERATE_C``, rising linearly to ``1 - TP_MIN_RATIO`` at ``TP_TRIP_C``.
+    Returns True if an enabled member's estimate reached ``TP_TRIP_C`` (the ``THERMAL``
+    trip). It knows nothing of the plant's temperatures."""
+    lo, hi = tp[TP_DERATE_C], tp[TP_TRIP_C]
+    depth = 1.0 - tp[TP_MIN_RATIO]
+    hit = False
+    for j in range(est.shape[0]):
+        i = i_meas_a[j]
+        r = r_ohm[j] * (1.0 + tp[TP_ALPHA] * (est[j, 0] - tp[TP_REF_C]))
+        p_h = tp[TP_NO_LOAD_A] * abs(vel_dps[j] * emf_v_per_dps[j])
+        network_step(est, j, i * i * r, p_h, tp[TP_AMBIENT_C], tp)
+        t_w = est[j, 0]
+        if t_w <= lo:
+            derate[j] = 0.0
+        elif t_w >= hi:
+            derate[j] = depth
+            if enabled[j]:
+                hit = True
+        else:
+            derate[j] = depth * (t_w - lo) / (hi - lo)
+    return hit

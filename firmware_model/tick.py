@@ -21,7 +21,17 @@ import numpy as np
 from firmware_model import safety
 from firmware_model.kernel_cache import kernel
 from firmware_model.laws import dispatch as law
-from firmware_model.laws.layout import C_INNOV, C_STUCK, P_DUTY, P_IMEAS, P_POS, P_VEL, P_VREF
+from firmware_model.laws.layout import (
+    C_INNOV,
+    C_STUCK,
+    P_DERATE,
+    P_DUTY,
+    P_IMEAS,
+    P_POS,
+    P_VEL,
+    P_VREF,
+)  # fmt: skip
+from firmware_model.thermal import TP_ON, thermal_protection
 from serial_protocol import frame
 from serial_protocol.messages import State
 
@@ -99,7 +109,10 @@ def _in_position(P, fs, enabled):
 
 
 # sf: the sensor checks' and the fault reaction's state, per member (Firmware._sf).
-SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK = range(7)
+# SF_EST: the thermal protection's estimate (N, 2); SF_TP: its constants (thermal.N_TP,).
+SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK, SF_EST, SF_TP = (
+    range(9)
+)
 
 
 @kernel
@@ -111,7 +124,8 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     condition (encoder jump or stuck, AS5048 errors, back-EMF mismatch, over-speed, travel,
     following error, watchdog): ``Firmware._check`` takes it from there. ``fi[FI_TICK]`` is
     not advanced here. ``sf``: ``(mismatch_deg, r_ohm, emf_v_per_dps, brake_ticks,
-    diag_ticks, diag_errors, mismatch_peak_deg)``, ``(N,)`` each (the ``SF_*`` rows)."""
+    diag_ticks, diag_errors, mismatch_peak_deg, thermal_est, thermal_tp)``, ``(N,)`` each
+    but the thermal protection's ``(N, 2)`` estimate and its constants (the ``SF_*`` rows)."""
     mismatch, brake, diag_ticks = sf[SF_MISMATCH], sf[SF_BRAKE], sf[SF_DIAG_TICKS]
     safety.brake_countdown(brake)
     # The duty applied in the last current period, the current it measured, the encoder's
@@ -128,6 +142,12 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     for j in range(diag_ticks.shape[0]):
         if enabled[j] and diag_ticks[j] >= fi[FI_DIAG_TICKS]:
             sensor = True
+    # The thermal protection (its estimate, the derating of this tick's current limit).
+    tp = sf[SF_TP]
+    if tp[TP_ON] != 0.0 and thermal_protection(
+        P[P_IMEAS], P[P_VEL], enabled, sf[SF_R], sf[SF_EMF], sf[SF_EST], tp, P[P_DERATE]
+    ):
+        sensor = True
     t_s = fi[FI_TICK] * fs[FS_DT]
     mode = fi[FI_MODE]
     v_clamp = fs[FS_V_CLAMP]

@@ -232,6 +232,7 @@ class Fault(IntEnum):
     BRIDGE = 7
     ENCODER_DIAG = 8  # the AS5048 reports an error (SPI parity, EF, CORDIC, magnetic field)
     SENSOR_MISMATCH = 9  # the encoder disagrees with the back-EMF: frozen sensor, runaway
+    THERMAL = 10  # the firmware's estimate of the winding temperature above its trip
 
 
 class FaultFlag(IntFlag):
@@ -243,6 +244,7 @@ class FaultFlag(IntFlag):
 
     OVER_CURRENT = 1 << 0  # power stage: |i| above the trip threshold
     BRIDGE = 1 << 1  # power stage: driver fault reported on the IS pin
+    THERMAL = 1 << 2  # power stage: the winding temperature estimate above its trip
     FOLLOWING_ERROR = 1 << 8  # motion: |setpoint - position| above following_error_deg
     OVER_SPEED = 1 << 9  # motion: |velocity| above over_speed_dps
     TRAVEL = 1 << 10  # motion: position outside the travel limits
@@ -263,6 +265,7 @@ FAULT_FLAG: dict[Fault, FaultFlag] = {
     Fault.BRIDGE: FaultFlag.BRIDGE,
     Fault.ENCODER_DIAG: FaultFlag.ENCODER_DIAG,
     Fault.SENSOR_MISMATCH: FaultFlag.SENSOR_MISMATCH,
+    Fault.THERMAL: FaultFlag.THERMAL,
 }
 
 

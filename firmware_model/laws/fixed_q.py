@@ -56,6 +56,7 @@ from firmware_model.laws.layout import (
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC_Q,
+    P_DERATE,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -193,6 +194,8 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     vc, il = qsig(v_clamp_dps), qsig(i_limit_a)
     sv, sa = qsig(sp_vel_dps), qsig(sp_acc_dps2)
     for j in range(C.shape[1]):
+        # The thermal protection's derating of this member (1 - 0 = the limit itself).
+        il = qsig(i_limit_a * (1.0 - P[P_DERATE, j]))
         e = _sat(_sat(sp_count - C[C_COUNT, j]) * Q_DEG_PER_COUNT)
         vr = _clamp(_sat(_mul(e, G[G_KP_P, j]) + _mul(sv, G[G_VFF, j])), vc)
         ev = _sat(vr - S[S_VEL, j])
@@ -224,7 +227,6 @@ def current(adc, enabled, P, C, S, G, K):
     sense_floor = K[K_SENSE_FLOOR]
     ul = qsig(K[K_U_LIM])
     inv_supply = np.int64(K[K_INV_SUPPLY_Q])
-    il = qsig(K[K_I_LIMIT_A])
     arr = np.int64(K[K_ARR])
     offset = np.int64(K[K_SENSE_OFFSET])
     for j in range(adc.shape[0]):
@@ -248,7 +250,7 @@ def current(adc, enabled, P, C, S, G, K):
         u = _sat(u + emf)
         i_i = S[S_I_I, j]
         # The regenerative clamp and its back-calculation (see float64.current).
-        r_lim = _mul(il, G[G_R_FF, j])
+        r_lim = _mul(qsig(K[K_I_LIMIT_A] * (1.0 - P[P_DERATE, j])), G[G_R_FF, j])
         lo, hi = _sat(emf - r_lim), _sat(emf + r_lim)
         if u < lo and u >= 0:
             i_i = _sat(i_i + _sat(lo - u))

@@ -53,6 +53,7 @@ from firmware_model.laws.layout import (
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC,
+    P_DERATE,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -157,7 +158,10 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     """Position P -> velocity PI with feed-forward, clamps and conditional integration:
     sets each member's velocity and current references."""
     regen = K[K_REGEN_A]
+    i_limit_all = i_limit_a
     for j in range(C.shape[1]):
+        # The thermal protection's derating of this member (1 - 0 = the limit itself).
+        i_limit_a = i_limit_all * (1.0 - P[P_DERATE, j])
         e = sp_pos_deg - C[C_COUNT, j] * AXIS_DEG_PER_COUNT
         vr = _clip(e * G[G_KP_P, j] + sp_vel_dps * G[G_VFF, j], v_clamp_dps)
         ev = vr - S[S_VEL, j]
@@ -183,7 +187,7 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
         iref = _clip(u, i_limit_a)
         S[S_IREF, j] = iref
         P[P_IREF, j] = iref
-    K[K_I_LIMIT_A] = i_limit_a
+    K[K_I_LIMIT_A] = i_limit_all
 
 
 @kernel
@@ -223,7 +227,7 @@ def current(adc, enabled, P, C, S, G, K):
         # to the high-side sense, so on that side the voltage is kept where the model
         # predicts at most the current limit, |u - emf| <= R * I_limit; the integrator
         # tracks the clamp (back-calculation), so that the loop leaves it without a jump.
-        r_lim = G[G_R_FF, j] * i_limit_a
+        r_lim = G[G_R_FF, j] * (i_limit_a * (1.0 - P[P_DERATE, j]))
         d = u - emf
         if abs(d) > r_lim and d * u <= 0.0:
             c = emf - r_lim if d < 0.0 else emf + r_lim

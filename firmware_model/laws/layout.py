@@ -26,9 +26,10 @@ HALF_REV = REV // 2
 # Q16.16 raw units of axis degrees per encoder count (exact: 18).
 Q_DEG_PER_COUNT = int(round(AXIS_DEG_PER_COUNT * (1 << fx.SIG_FRAC_BITS)))
 
-# P: published, float axis units.
-P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY = range(7)
-N_P = 7
+# P: published, float axis units. P_DERATE: the fraction of the current limit the thermal
+# protection takes away (0: none; firmware_model.thermal.thermal_protection writes it).
+P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY, P_DERATE = range(8)
+N_P = 8
 # C: integers.
 # C_BUS_ADC: the bus-voltage ADC reading of the period (the board writes it, as the IS pin's).
 C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC = range(7)
