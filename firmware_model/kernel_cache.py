@@ -22,11 +22,12 @@ array passed into the function as argument").
 from __future__ import annotations
 
 import hashlib
+import sys
 from pathlib import Path
 
 import numba
 
-__all__ = ["KERNEL_SOURCES", "check", "kernel"]
+__all__ = ["KERNEL_SOURCES", "check", "kernel", "prepare"]
 
 
 def kernel(fn=None, /, **options):
@@ -75,6 +76,34 @@ KERNEL_SOURCES = (
     "sim/thermal.py",
     "sim/tick.py",
 )
+
+
+_PREPARED: list[bool] = []
+
+
+def prepare() -> None:
+    """Load numba's implementation registries (what its first compile or cache load of the
+    process does anyway) without importing ``scipy.linalg``: numba imports it there only to
+    set ``numba.np.arraymath._HAVE_BLAS``, which picks the inner product of its
+    ``np.convolve``/``np.correlate`` (none in our kernels; ``np.dot`` checks for BLAS again
+    when it compiles). The import costs 0.15-0.3 s, a third of a fresh process's kernel
+    load (cProfile, 2 December). Idempotent; a no-op once ``scipy.linalg`` is imported (a
+    command that uses it keeps numba's default)."""
+    if _PREPARED:
+        return
+    _PREPARED.append(True)
+    if "scipy.linalg" in sys.modules:
+        return
+    from numba.core.registry import cpu_target
+
+    # None in sys.modules makes "import scipy.linalg[.anything]" raise ImportError, which
+    # numba's check catches (BLAS "not available" for that one choice); removed right after.
+    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]
+    try:
+        cpu_target.target_context.refresh()
+    finally:
+        if sys.modules.get("scipy.linalg", 0) is None:
+            del sys.modules["scipy.linalg"]
 
 
 def check() -> None:

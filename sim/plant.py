@@ -295,10 +295,8 @@ def ladder_rows(
     if rows is None:
         if len(_LADDERS) >= _LADDERS_MAX:
             _LADDERS.clear()  # bounded: ~26 kB per entry; plants keep their own copies
-        rows = [
-            tuple(tuple(float(v) for v in row) for row in mat)
-            for mat in zoh_ladder(key, co, h_s, levels)
-        ]
+        # tolist(): the same Python floats, ~10x faster than float() per element
+        rows = [tuple(map(tuple, mat.tolist())) for mat in zoh_ladder(key, co, h_s, levels)]
         _LADDERS[slot] = rows
     return rows
 
