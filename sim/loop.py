@@ -369,6 +369,17 @@ class Simulation:
         # The project's firmware reads the bus voltage too (a foreign one: the IS pin only).
         self._reads_bus = isinstance(firmware, Firmware)
         self._x_spare = np.zeros((n, 5))
+        # run_ticks' scratch and its log tuple, kept between calls (a call of one tick,
+        # sim.step(1), should not pay a dozen small allocations): ctx, flags, credit, the
+        # telemetry values, en_now, counts, adc; every call starts at the tick's top, where
+        # run_ticks writes each before reading it.
+        self._scratch = (
+            np.zeros(st.N_CX, dtype=np.int64), np.zeros(st.N_F, dtype=np.int64), np.zeros(1),
+            np.empty(6), np.zeros(n, dtype=bool), np.zeros(n, dtype=np.int64),
+            np.zeros(n, dtype=np.int64),
+        )  # fmt: skip
+        self._logs: tuple[Any, ...] = ()
+        self._logs_of: np.ndarray | None = None
 
     # ---------------------------------------------------------------- public API
     @property
@@ -534,7 +545,8 @@ class Simulation:
         if keep and (k_end > self._cap or not self._arrays):
             self._grow(k_end)
         law, plant, enc = fw.law, self.plant, self.encoder
-        ctx = np.zeros(st.N_CX, dtype=np.int64)
+        ctx, flags, credit, values, en_now, counts, adc = self._scratch
+        ctx[:] = 0
         ctx[st.CX_K] = self.tick
         ctx[st.CX_STAGE] = st.TOP
         ctx[st.CX_ENC_ROW] = enc.row
@@ -544,8 +556,8 @@ class Simulation:
         spare = self._x_spare if self._x_spare is not x else np.zeros((n, 5))
         uart_tx = self.uart_tx
         ctx[st.CX_PENDING] = uart_tx.pending
-        credit = np.array([uart_tx.credit])
-        flags = np.zeros(st.N_F, dtype=np.int64)
+        credit[0] = uart_tx.credit
+        flags[:] = 0
         flags[st.F_FRAMER] = ftick.framer_ok()
         flags[st.F_KEEP] = keep
         flags[st.F_FIFO] = uart_tx.fifo_bytes
@@ -554,26 +566,26 @@ class Simulation:
         flags[st.F_ADC_NOISY] = self._adc_noisy
         flags[st.F_ENC_FAULT] = enc.faulty
         txbuf = np.empty((n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
-        en_now = np.zeros(n, dtype=bool)
-        counts, adc = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
         # The last applied duty (the IS pin reads within its PWM period, sim.bridge.read_adc).
         duty, enable = self._duty.astype(float), self._enable.astype(bool)
-        if keep:
-            arrays = self._arrays
-            logs = (
-                self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
-                arrays["bus_v"], arrays["winding_c"],
-            )  # fmt: skip
-        else:
-            empty = np.empty((0, n))
-            ints = np.empty((0, n), dtype=np.int64)
-            logs = (
-                np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty, empty,
-            )  # fmt: skip
+        if self._logs_of is not self._xlog:  # a new log allocation (or the first call)
+            if keep:
+                arrays = self._arrays
+                self._logs = (
+                    self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
+                    arrays["bus_v"], arrays["winding_c"],
+                )  # fmt: skip
+            else:
+                empty = np.empty((0, n))
+                ints = np.empty((0, n), dtype=np.int64)
+                self._logs = (
+                    np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty, empty,
+                )  # fmt: skip
+            self._logs_of = self._xlog
+        logs = self._logs
         bridge_params = (self._arr_n, self._vs_n, self._shifts)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
         bps = float(bytes_per_s(uart_tx.baud))
-        values = np.empty(6)  # a telemetry frame's float fields (the kernel allocates nothing)
         x0, x1 = (x, spare)
         while True:
             fw._pack()
