@@ -36,11 +36,13 @@ batch takes it as one number); measured on single runs of eight motors of the de
 moves the Fig. 6 overshoot by at most 0.3 deg.
 
 **Effects** (:data:`EFFECTS`): every switch of docs/model.md that the bench has off (or on,
-for the gearbox drag), at the values docs/model.md assumes when it is on. The bus model
-(``[supply] bus_model``) is a switch the batch cannot vary per member; its members run in
-their own batch. Without a brake chopper the bus model **locks the bridge out** in Fig. 6's
-braking (28 V) and the step overshoots by hundreds of degrees; the report says so and the
-band figure marks it (it is not drawn inside the envelope, whose scale it would flatten).
+for the gearbox drag), at the values docs/model.md assumes when it is on; the heat model
+(``[thermal] model``) from ambient and from a warm motor. The bus and heat models
+(``[supply] bus_model``, ``[thermal] model``) are switches the batch cannot vary per member;
+their members run in batches of their own. Without a brake chopper the bus model **locks
+the bridge out** in Fig. 6's braking (28 V) and the step overshoots by hundreds of degrees;
+the report says so and the band figure marks it (it is not drawn inside the envelope, whose
+scale it would flatten).
 
 Noise: every member of a batch draws its own encoder noise, so ``noise_copies`` copies of
 the nominal member give the spread that the noise alone makes (the report's error bars).
@@ -115,6 +117,12 @@ EFFECTS: dict[str, dict[str, Any]] = {
     "bus model + chopper 10 Ω at 26.5 V": {
         "supply.bus_model": True,
         "supply.brake_resistor_ohm": 10.0,
+    },
+    "thermal model, motor at 25 °C ambient": {"thermal.model": True},
+    "thermal model, warm motor (winding +55 K, housing +30 K)": {
+        "thermal.model": True,
+        "thermal.initial_winding_rise_k": 55.0,
+        "thermal.initial_housing_rise_k": 30.0,
     },
 }
 

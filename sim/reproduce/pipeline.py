@@ -21,7 +21,6 @@ from sim.reproduce import (
     scurve_extras,
     seed002,
 )
-from sim.reproduce import sensitivity as sensitivity_mod
 from sim.reproduce.experiments import Runner, load, write_telemetry_csv
 
 __all__ = ["FIGURES", "TELEMETRY_DIR", "ReproduceOutput", "reproduce"]
@@ -111,21 +110,6 @@ def reproduce(
         quick=quick, full=sensitivity, retune_how=retune, noise_copies=noise_copies
     )
     band.plot(sens.band, out / "fig6_band.png")
-    # Error bars for the metrics of REPORT.md section 4: each paper run again in noise
-    # copies (one batch per run, measured as the run itself).
-    noise_runs = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
-    noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
-    noise = {
-        trace.name: sensitivity_mod.noise_spread(
-            trace.name,
-            runner.experiments[trace.name],
-            max(sens.noise_copies, 2),
-            limit_a,
-            from_t_s,
-        )
-        for trace, from_t_s in noise_runs
-    }
-    paths.append(out / "fig6_band.png")
     s2 = sc = la = pg = None
     if extras:
         s2 = seed002.run(runner)
@@ -147,6 +131,26 @@ def reproduce(
         programs_demo.plot_stream(pg, out / "stream.png")
         paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png",
                   out / "programs.png", out / "stream.png"]  # fmt: skip
+    # Error bars for the metrics of REPORT.md section 4: each paper run again in noise
+    # copies (one batch per run, measured as the run itself).
+    from sim.reproduce.sensitivity import noise_spread  # not at the top: python -m runs it
+
+    noise_runs = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
+    noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
+    if sc is not None:  # measured as scurve_extras measures them (Fig. 7 from the interrupt)
+        noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in sc.fig7.runs]
+        noise_runs += [(sc.fig8.trace, None)]
+    noise = {
+        trace.name: noise_spread(
+            trace.name,
+            runner.experiments[trace.name],
+            max(sens.noise_copies, 2),
+            limit_a,
+            from_t_s,
+        )
+        for trace, from_t_s in noise_runs
+    }
+    paths.append(out / "fig6_band.png")
     wall_s = time.monotonic() - wall0
     inputs = report.ReportInputs(
         fig6=r6,

@@ -17,7 +17,7 @@ import argparse
 import math
 import statistics
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -180,9 +180,26 @@ def _table(title: str, columns: Mapping[str, dict[str, tuple]], fmt: str = "{:.4
     return "\n".join(lines)
 
 
+class _Parser(argparse.ArgumentParser):
+    """A usage error as one line (exit status 2), as ``turntable-sim`` reports them."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def _seeds(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: not an integer") from None
+    if not 2 <= value <= 64:
+        raise argparse.ArgumentTypeError(f"{text!r}: must be in 2 .. 64")
+    return value
+
+
 def main(argv: Sequence[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seeds", type=int, default=5)
+    ap = _Parser(prog="python3 -m sim.reproduce.sensitivity", description=__doc__.split("\n")[0])
+    ap.add_argument("--seeds", type=_seeds, default=5, help="noise seeds, 2..64 (default 5)")
     args = ap.parse_args(argv)
     seeds = range(args.seeds)
     print("**Table 1 from the planner alone** (commanded state at each replan)\n")

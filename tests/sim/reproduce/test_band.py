@@ -157,3 +157,14 @@ def test_noise_spread_is_the_spread_of_the_copies():
     assert noise_spread("step", quiet, 2, 5.0)["overshoot_deg"][1] == 0.0
     with pytest.raises(ValueError, match="copies = 1"):
         noise_spread("step", exp, 1, 5.0)
+
+
+@pytest.mark.parametrize("seeds", ["1", "65", "x"])
+def test_the_sensitivity_module_refuses_bad_seeds_in_one_line(seeds, capsys):
+    from sim.reproduce import sensitivity
+
+    with pytest.raises(SystemExit) as exc:
+        sensitivity.main(["--seeds", seeds])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--seeds: '{seeds}'" in err[0]
