@@ -187,6 +187,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.current_limit = v(t, ok); m.following_error = v(t, ok);
         m.over_current_trip = v(t, ok); m.travel_min = v(t, ok); m.travel_max = v(t, ok);
         m.over_speed = v(t, ok); m.over_current_max = v(t, ok);
+        m.bus_over_voltage = v(t, ok); m.bus_under_voltage = v(t, ok);
         return tt_encode_limits(p, &m);
     }
     case TT_STATUS: {
@@ -207,6 +208,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.tx_telemetry_dropped = v(t, ok);
         m.queue_free = (uint8_t)v(t, ok); m.stream_free = (uint8_t)v(t, ok);
         m.stream_state = (uint8_t)v(t, ok); m.stream_underruns = v(t, ok);
+        m.bus_mv = (uint16_t)v(t, ok);
         return tt_encode_board_heartbeat(p, &m);
     }
     case TT_FAULT_INFO: {

@@ -457,6 +457,8 @@ size_t tt_encode_limits(uint8_t *out, const tt_limits *m)
     put_u32(out, &at, m->travel_max);
     put_u32(out, &at, m->over_speed);
     put_u32(out, &at, m->over_current_max);
+    put_u32(out, &at, m->bus_over_voltage);
+    put_u32(out, &at, m->bus_under_voltage);
     return at;
 }
 
@@ -495,6 +497,7 @@ size_t tt_encode_board_heartbeat(uint8_t *out, const tt_board_heartbeat *m)
     put_u8(out, &at, m->stream_free);
     put_u8(out, &at, m->stream_state);
     put_u32(out, &at, m->stream_underruns);
+    put_u16(out, &at, m->bus_mv);
     return at;
 }
 

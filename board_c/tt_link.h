@@ -182,6 +182,7 @@ typedef struct {
     uint16_t cmd_id;
     uint32_t v_max, a_max, current_limit, following_error, over_current_trip, travel_min,
         travel_max, over_speed, over_current_max; /* f32 bits */
+    uint32_t bus_over_voltage, bus_under_voltage; /* appended: f32 bits, 0 = off */
 } tt_limits;
 typedef struct {
     uint16_t cmd_id;
@@ -199,6 +200,7 @@ typedef struct {
         rx_seq_gaps, rx_overflow_bytes, rx_silence_discards, rx_nacked, tx_telemetry_dropped;
     uint8_t queue_free, stream_free, stream_state; /* appended: flow control */
     uint32_t stream_underruns;
+    uint16_t bus_mv; /* appended: the measured bus voltage in mV, 0 = unknown */
 } tt_board_heartbeat;
 typedef struct {
     uint16_t cmd_id;

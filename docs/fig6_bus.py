@@ -4,7 +4,8 @@ and the table of docs/model.md's section "Supply and bus".
 Each variant is ``bench_configs/fig6.toml`` (10 s, seed 0) with overrides of the bench's
 ``[supply]`` / ``[bridge]`` / ``[controller.current]`` tables. Prints one row per variant:
 overshoot, the first lock-out, how long the bridge was locked out, the bus peak, the
-braking energy returned to the bus and its peak power, the position at the end.
+braking energy returned to the bus and its peak power, the position at the end, the
+firmware's first trip (``[safety] bus_voltage_check``; nan: none).
 Run: ``python3 docs/fig6_bus.py`` (about 10 s after the kernels are compiled).
 """
 
@@ -35,6 +36,15 @@ VARIANTS: dict[str, dict[str, object]] = {
         **BUS,
         "controller.current.regen_bus_current_limit_a": 0.05,
     },
+    "bus + firmware bus trip at 27 V (no chopper)": {
+        **BUS,
+        "safety.bus_voltage_check": True,
+    },
+    "bus + firmware bus trip at 26 V (no chopper)": {
+        **BUS,
+        "safety.bus_voltage_check": True,
+        "safety.bus_over_voltage_v": 26.0,
+    },
 }
 
 
@@ -54,6 +64,7 @@ def _metrics(log: loop.RunLog, dt_s: float) -> dict[str, float]:
         "returned_j": float(-np.minimum(p_w, 0.0).sum() * dt_s),
         "peak_return_w": float(-p_w.min()),
         "final_error_deg": float(p[-1] - 3000.0),
+        "fault_s": float(t[np.argmax(log.fault != 0)]) if log.fault.any() else float("nan"),
     }
 
 
@@ -62,7 +73,7 @@ def main(out: Path = Path(__file__).parent / "img" / "fig6_bus.png") -> Path:
     fig, (ax_p, ax_v, ax_b) = plt.subplots(3, 1, figsize=(10, 10), sharex=True)
     print(
         f"{'variant':58s} {'overshoot':>10s} {'at':>6s} {'1st lock':>8s} {'locked':>7s} "
-        f"{'bus max':>7s} {'returned':>8s} {'peak':>6s} {'end err':>8s}"
+        f"{'bus max':>7s} {'returned':>8s} {'peak':>6s} {'end err':>8s} {'trip':>6s}"
     )
     for name, overrides in VARIANTS.items():
         log = loop.run(exp, seed=0, overrides=overrides or None).log
@@ -70,7 +81,7 @@ def main(out: Path = Path(__file__).parent / "img" / "fig6_bus.png") -> Path:
         print(
             f"{name:58s} {m['overshoot_deg']:8.1f} ° {m['t_peak_s']:5.2f}s "
             f"{m['first_lockout_s']:7.3f}s {m['locked_s']:6.2f}s {m['bus_max_v']:6.2f}V "
-            f"{m['returned_j']:7.2f}J {m['peak_return_w']:5.1f}W {m['final_error_deg']:7.2f}°"
+            f"{m['returned_j']:7.2f}J {m['peak_return_w']:5.1f}W {m['final_error_deg']:7.2f}° {m['fault_s']:5.3f}s"
         )
         ax_p.plot(log.t_s, log.true_pos_deg, label=name, lw=1.1)
         ax_v.plot(log.t_s, log.true_vel_dps, lw=1.0)

@@ -291,10 +291,12 @@ class Firmware:
         # housing temperatures from power-up at the assumed ambient, and its constants.
         self._thermal_est = np.full((n, 2), float(params.safety.thermal_ambient_c))
         self._thermal_tp = protection_constants(params.safety, self.dt_s)
+        # The bus voltage screen: current-loop readings in a row beyond a threshold.
+        self._bus_ticks = np.zeros(n, dtype=np.int64)
         self._sf = (
             self._mismatch_deg, self._r_ohm, self._emf_v_per_dps, self._brake_ticks,
             self._diag_ticks, self._diag_errors, self.sensor_mismatch_peak_deg,
-            self._thermal_est, self._thermal_tp,
+            self._thermal_est, self._thermal_tp, self._bus_ticks,
         )  # fmt: skip
         # Rare events count here; the per-tick TX counters are plain ints (see counters).
         self._counts: dict[str, int] = {
@@ -339,6 +341,13 @@ class Firmware:
             s.sensor_mismatch_tolerance_ratio, s.sensor_mismatch_deg,
         )  # fmt: skip
         fi[ftick.FI_DIAG_TICKS] = s.encoder_diag_ticks
+        # The bus trips' thresholds in counts of the bus reading (safety.bus_voltage_screen).
+        v_per_count = params.current.v_per_bus_adc
+        self._bus_over_counts = math.floor(s.bus_over_voltage_v / v_per_count)
+        self._bus_under_counts = math.ceil(s.bus_under_voltage_v / v_per_count)
+        fi[ftick.FI_BUS_OVER] = self._bus_over_counts
+        fi[ftick.FI_BUS_UNDER] = self._bus_under_counts
+        fi[ftick.FI_BUS_SAMPLES] = s.bus_voltage_samples if s.bus_voltage_check else 0
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
 
@@ -417,16 +426,12 @@ class Firmware:
         fi = self._fi
         fi[ftick.FI_OC_ANY] = self._oc_s
         trip = ftick.current_stage(
-            adc, enabled, law.P, law.C, law.S, law.G, law.K, self._fs, fi, self._oc_ticks
-        )
+            adc, enabled, law.P, law.C, law.S, law.G, law.K, self._fs, fi, self._oc_ticks,
+            self._bus_ticks,
+        )  # fmt: skip
         self._oc_s = int(fi[ftick.FI_OC_ANY])
         if trip:
-            self._trip(
-                self._oc_ticks >= self._oc_samples,
-                Fault.OVER_CURRENT,
-                law.current_meas_a.copy(),
-                self._oc_thr_a,
-            )
+            self._current_trips()
             enabled = self._enabled.copy()
         safety.brake_enable(enabled, self._brake_ticks)  # duty 0 with the bridge on
         if self._scalar:
@@ -701,6 +706,23 @@ class Firmware:
             ticks = float(self.tick - self._last_rx_tick)
             self._trip(live, Fault.WATCHDOG, np.full(self._n, ticks), float(self._watchdog_ticks))
 
+    def _current_trips(self) -> None:
+        """The trips of the current-loop screens (``firmware_model.tick.current_stage``):
+        over-current, and the bus over/under-voltage (over if the reading is above the
+        over threshold, else under), with the measured bus in volts as the value."""
+        self._trip(
+            self._oc_ticks >= self._oc_samples, Fault.OVER_CURRENT,
+            self.law.current_meas_a.copy(), self._oc_thr_a,
+        )  # fmt: skip
+        s = self.params.safety
+        hit = self._bus_ticks >= s.bus_voltage_samples
+        if s.bus_voltage_check and hit.any():
+            reading = self.law.C[C_BUS_ADC]
+            bus_v = reading * self.params.current.v_per_bus_adc
+            over = hit & (reading > self._bus_over_counts)
+            self._trip(over, Fault.BUS_OVER_VOLTAGE, bus_v, s.bus_over_voltage_v)
+            self._trip(hit & ~over, Fault.BUS_UNDER_VOLTAGE, bus_v, s.bus_under_voltage_v)
+
     def _trip(self, mask: Any, fault: Fault, value: Any, threshold: float = 0.0) -> None:
         """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion.
 
@@ -886,6 +908,8 @@ class Firmware:
                 over_current_trip_a=self._oc_thr_a, travel_min_deg=lim.travel_min_deg,
                 travel_max_deg=lim.travel_max_deg, over_speed_dps=s.over_speed_dps,
                 over_current_max_a=s.over_current_a,
+                bus_over_voltage_v=s.bus_over_voltage_v if s.bus_voltage_check else 0.0,
+                bus_under_voltage_v=s.bus_under_voltage_v if s.bus_voltage_check else 0.0,
             )  # fmt: skip
         if isinstance(msg, GetFault):
             if not 0 <= msg.bit <= 31:
@@ -917,7 +941,16 @@ class Firmware:
             tx_telemetry_dropped=self._tx_dropped & w,
             queue_free=self.program.free(t_s), stream_free=self.stream.free(t_s),
             stream_state=self.stream.state, stream_underruns=self.stream.underruns & w,
+            bus_voltage_v=self.bus_voltage_v,
         )  # fmt: skip
+
+    @property
+    def bus_voltage_v(self) -> float:
+        """Member 0's bus voltage as the firmware reads it (V: the ADC reading times volts
+        per count, ``[controller.current] bus_divider_ratio``), in the 1 mV steps and
+        range of ``BoardHeartbeat.bus_voltage_v`` (at most 65.535 V)."""
+        volts = int(self.law.C[C_BUS_ADC, 0]) * self.params.current.v_per_bus_adc
+        return min(round(volts * 1000.0), 0xFFFF) / 1000.0
 
     def _state0(self) -> int:
         """The state of member 0 (the one replies and telemetry describe)."""

@@ -405,6 +405,10 @@ class SafetyParams(_Checked):
     thermal_tau_winding_s: float = _f(30.0, _rng(0.1, 3600.0))
     thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
     thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
+    bus_voltage_check: bool = _f(False, _boolean)
+    bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))
+    bus_under_voltage_v: float = _f(18.0, _rng(0.0, 100.0))
+    bus_voltage_samples: int = _f(1, _irng(1, 1000))
 
     def _check_relations(self) -> None:
         if not self.thermal_derate_c < self.thermal_trip_c:
@@ -412,6 +416,12 @@ class SafetyParams(_Checked):
                 "thermal_derate_c", self.thermal_derate_c,
                 f"must be below thermal_trip_c ({self.thermal_trip_c:g})",
             )  # fmt: skip
+        if not self.bus_under_voltage_v < self.bus_over_voltage_v:
+            _fail(
+                "bus_under_voltage_v",
+                self.bus_under_voltage_v,
+                f"must be below bus_over_voltage_v ({self.bus_over_voltage_v})",
+            )
 
 
 @dataclass(frozen=True)

@@ -34,6 +34,7 @@ __all__ = [
     "WIRE_POS_MAX_DEG",
     "brake_countdown",
     "brake_enable",
+    "bus_voltage_screen",
     "edge_speed_dps",
     "wire_pos",
     "min_stop_decel_dps2",
@@ -252,3 +253,28 @@ def brake_enable(enable, brake_ticks):
     for j in range(enable.shape[0]):
         if brake_ticks[j] > 0:
             enable[j] = True
+
+
+@kernel
+def bus_voltage_screen(bus_adc, live, over_counts, under_counts, samples, bus_ticks):
+    """One current-loop period of the bus over/under-voltage screen, for N members: a live
+    member whose bus reading (``bus_adc``, int ``(N,)``, counts of the divider's ADC
+    channel) is above ``over_counts`` or below ``under_counts`` counts one more period in
+    ``bus_ticks`` (int64 ``(N,)``, in place), any other restarts at 0. Returns True if a
+    member reached ``samples`` periods in a row (the firmware then trips it:
+    ``Firmware._current_trips``, which tells over from under by the reading).
+
+    The thresholds are in counts, as a firmware without an FPU compares them:
+    ``over_counts = floor(V_over / V_per_count)``, ``under_counts = ceil(V_under /
+    V_per_count)``, so that ``reading > over_counts`` is exactly ``reading * V_per_count >
+    V_over`` (and likewise under)."""
+    trip = False
+    for j in range(bus_adc.shape[0]):
+        c = bus_adc[j]
+        if live[j] and (c > over_counts or c < under_counts):
+            bus_ticks[j] += 1
+            if bus_ticks[j] >= samples:
+                trip = True
+        else:
+            bus_ticks[j] = 0
+    return trip

@@ -22,6 +22,7 @@ from firmware_model import safety
 from firmware_model.kernel_cache import kernel
 from firmware_model.laws import dispatch as law
 from firmware_model.laws.layout import (
+    C_BUS_ADC,
     C_INNOV,
     C_STUCK,
     P_DERATE,
@@ -52,9 +53,11 @@ N_FS = 28
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
     FI_OC_ANY, FI_OC_SAMPLES, FI_TX_FRAMES, FI_TX_BYTES, FI_TX_DROPPED, FI_JUMP, FI_STUCK,
-    FI_HEARTBEAT, FI_JOG_TIMEOUT, FI_DIAG_TICKS,
-) = range(18)  # fmt: skip
-N_FI = 18
+    FI_HEARTBEAT, FI_JOG_TIMEOUT, FI_DIAG_TICKS, FI_BUS_OVER, FI_BUS_UNDER, FI_BUS_SAMPLES,
+) = range(21)  # fmt: skip
+N_FI = 21
+# FI_BUS_OVER / _UNDER: the bus trips' thresholds in counts of the bus reading (a reading
+# above / below trips); FI_BUS_SAMPLES: readings in a row that trip, 0 = the check off.
 MODE_HOLD, MODE_PLAN, MODE_STEP = 0, 1, 2
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
@@ -109,10 +112,12 @@ def _in_position(P, fs, enabled):
 
 
 # sf: the sensor checks' and the fault reaction's state, per member (Firmware._sf).
-# SF_EST: the thermal protection's estimate (N, 2); SF_TP: its constants (thermal.N_TP,).
-SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK, SF_EST, SF_TP = (
-    range(9)
-)
+# SF_EST: the thermal protection's estimate (N, 2); SF_TP: its constants (thermal.N_TP,);
+# SF_BUS_TICKS: the bus voltage screen's readings in a row beyond a threshold.
+(
+    SF_MISMATCH, SF_R, SF_EMF, SF_BRAKE, SF_DIAG_TICKS, SF_DIAG_ERRORS, SF_PEAK, SF_EST, SF_TP,
+    SF_BUS_TICKS,
+) = range(10)  # fmt: skip
 
 
 @kernel
@@ -209,11 +214,18 @@ def trip_screen(P, C, fs, fi):
 
 
 @kernel
-def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
-    """One current-loop period (the law's step) and the over-current screen:
-    a member counts the periods its |sensed current| stays above the threshold while
-    enabled. Returns True if one reached the trip count (``oc_ticks`` says which)."""
+def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks, bus_ticks):
+    """One current-loop period (the law's step), the over-current screen (a member counts
+    the periods its |sensed current| stays above the threshold while enabled) and the bus
+    voltage screen (``safety.bus_voltage_screen``, with ``[safety] bus_voltage_check``).
+    Returns True if one reached its trip count (``oc_ticks``, ``bus_ticks`` say which)."""
     law.current(adc, enabled, P, C, S, G, K)
+    bus = False
+    if fi[FI_BUS_SAMPLES]:
+        bus = safety.bus_voltage_screen(
+            C[C_BUS_ADC], enabled, fi[FI_BUS_OVER], fi[FI_BUS_UNDER], fi[FI_BUS_SAMPLES],
+            bus_ticks,
+        )  # fmt: skip
     thr = fs[FS_OC_THR]
     over_any = False
     for j in range(adc.shape[0]):
@@ -224,7 +236,7 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
         if fi[FI_OC_ANY]:
             oc_ticks[:] = 0
             fi[FI_OC_ANY] = 0
-        return False
+        return bus
     fi[FI_OC_ANY] = 1
     trip = False
     for j in range(adc.shape[0]):
@@ -234,7 +246,7 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks):
                 trip = True
         else:
             oc_ticks[j] = 0
-    return trip
+    return trip or bus
 
 
 @kernel(inline="always")

@@ -124,6 +124,7 @@ POS_SCALE = 10_000.0  # 1 LSB = 1e-4 deg
 VEL_SCALE = 10_000.0  # 1 LSB = 1e-4 deg/s
 CURRENT_SCALE = 1_000.0  # 1 LSB = 1 mA
 DUTY_SCALE = 10_000.0  # 1 LSB = 1e-4 of full duty
+BUS_SCALE = 1_000.0  # 1 LSB = 1 mV (BoardHeartbeat.bus_voltage_v)
 
 
 def _crc8_table() -> bytes:
@@ -354,6 +355,8 @@ _ROWS: tuple[_Row, ...] = (
             _f("travel_max_deg", "f32", "deg", "highest `Move` target (read-only)"),
             _f("over_speed_dps", "f32", "deg/s", "over-speed trip; ceiling of v_max (read-only)"),
             _f("over_current_max_a", "f32", "A", "ceiling of over_current_trip_a (read-only)"),
+            _f("bus_over_voltage_v", "f32", "V", "bus over-voltage trip; 0 = off (read-only)"),
+            _f("bus_under_voltage_v", "f32", "V", "bus under-voltage trip; 0 = off (read-only)"),
         ),
     ),
     _Row(
@@ -390,6 +393,8 @@ _ROWS: tuple[_Row, ...] = (
             _f("stream_free", "u8", "points", "stream points that may be sent now"),
             _f("stream_state", "u8", "", "`StreamState` code", enum=StreamState),
             _f("stream_underruns", "u32", "", "stream underruns since boot", wrap=True),
+            _f("bus_voltage_v", "u16", "V", "measured bus voltage, 1 LSB = 1 mV; 0 = unknown",
+               scale=BUS_SCALE),  # fmt: skip
         ),
     ),
     _Row(

@@ -233,6 +233,8 @@ class Fault(IntEnum):
     ENCODER_DIAG = 8  # the AS5048 reports an error (SPI parity, EF, CORDIC, magnetic field)
     SENSOR_MISMATCH = 9  # the encoder disagrees with the back-EMF: frozen sensor, runaway
     THERMAL = 10  # the firmware's estimate of the winding temperature above its trip
+    BUS_OVER_VOLTAGE = 11  # the measured bus above [safety] bus_over_voltage_v
+    BUS_UNDER_VOLTAGE = 12  # the measured bus below [safety] bus_under_voltage_v
 
 
 class FaultFlag(IntFlag):
@@ -245,6 +247,8 @@ class FaultFlag(IntFlag):
     OVER_CURRENT = 1 << 0  # power stage: |i| above the trip threshold
     BRIDGE = 1 << 1  # power stage: driver fault reported on the IS pin
     THERMAL = 1 << 2  # power stage: the winding temperature estimate above its trip
+    BUS_OVER_VOLTAGE = 1 << 3  # power stage: the measured bus voltage too high
+    BUS_UNDER_VOLTAGE = 1 << 4  # power stage: the measured bus voltage too low
     FOLLOWING_ERROR = 1 << 8  # motion: |setpoint - position| above following_error_deg
     OVER_SPEED = 1 << 9  # motion: |velocity| above over_speed_dps
     TRAVEL = 1 << 10  # motion: position outside the travel limits
@@ -266,6 +270,8 @@ FAULT_FLAG: dict[Fault, FaultFlag] = {
     Fault.ENCODER_DIAG: FaultFlag.ENCODER_DIAG,
     Fault.SENSOR_MISMATCH: FaultFlag.SENSOR_MISMATCH,
     Fault.THERMAL: FaultFlag.THERMAL,
+    Fault.BUS_OVER_VOLTAGE: FaultFlag.BUS_OVER_VOLTAGE,
+    Fault.BUS_UNDER_VOLTAGE: FaultFlag.BUS_UNDER_VOLTAGE,
 }
 
 
@@ -706,6 +712,9 @@ class Limits:
     travel_max_deg: float = 0.0
     over_speed_dps: float = 0.0
     over_current_max_a: float = 0.0
+    # Appended (extension rule): the bus voltage trips' thresholds, 0 = the check off.
+    bus_over_voltage_v: float = 0.0
+    bus_under_voltage_v: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -728,7 +737,8 @@ class Status:
 @dataclass(frozen=True, slots=True)
 class BoardHeartbeat:
     """Sent by the board every ``HelloReply.heartbeat_ms``: its state and the counters of
-    its receiver (each u32, wrapping), MAVLink HEARTBEAT + SYS_STATUS in one."""
+    its receiver (each u32, wrapping), MAVLink HEARTBEAT + SYS_STATUS in one, and the
+    bus voltage the board measures (``bus_voltage_v``, as SYS_STATUS's battery voltage)."""
 
     MSG_TYPE: ClassVar[int] = MsgType.BOARD_HEARTBEAT
     tick: int
@@ -749,6 +759,9 @@ class BoardHeartbeat:
     stream_free: int = 0
     stream_state: StreamState = StreamState.IDLE
     stream_underruns: int = 0
+    # Appended (extension rule): the bus voltage as the board measures it (V, 1 mV steps;
+    # 0 = not reported, an older board).
+    bus_voltage_v: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

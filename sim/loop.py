@@ -39,7 +39,7 @@ from firmware_model import tick as ftick
 from firmware_model.firmware import SIGNAL_NAMES
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
-from serial_protocol.messages import Fault, Hello, Telemetry
+from serial_protocol.messages import Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
 from sim import tick as st
 from sim.bridge import apply_bridge, pwm_sense_table, read_adc, switching, switching_table
@@ -653,10 +653,7 @@ class Simulation:
                     uart_tx.write(data)
                 ctx[st.CX_PENDING] = uart_tx.pending
             elif code == st.STOP_OC:
-                fw._trip(
-                    fw._oc_ticks >= fw._oc_samples, Fault.OVER_CURRENT,
-                    law.current_meas_a.copy(), fw._oc_thr_a,
-                )  # fmt: skip
+                fw._current_trips()
                 en_now[:] = fw._enabled
             elif code == st.STOP_MODE:
                 plant._load(int(ctx[st.CX_NEED_GROUP]), int(ctx[st.CX_NEED_MODE]))

@@ -415,16 +415,26 @@ def _name(enum: Any, value: int) -> str:
         return f"{enum.__name__.lower()} {value}"
 
 
-def status_text(msg: Telemetry | None, width: int = TOOLBAR_COLUMNS) -> str:
-    """The toolbar line for the latest telemetry (at most ``width`` characters)."""
+def status_text(
+    msg: Telemetry | None, width: int = TOOLBAR_COLUMNS, bus_voltage_v: float = 0.0
+) -> str:
+    """The toolbar line for the latest telemetry (at most ``width`` characters), with the
+    bus voltage of the latest ``BoardHeartbeat`` (``bus_voltage_v``; 0: none reported)."""
     if msg is None:
         return "no telemetry yet ('telemetry 1' asks for it)"[:width]
     fault = "" if msg.fault == Fault.NONE else f" {_name(Fault, msg.fault)}"
+    bus = f" {bus_voltage_v:4.1f}V" if bus_voltage_v > 0.0 else ""
     text = (
         f"{_name(State, msg.state):<8} pos {msg.pos_deg:>10.2f}° sp {msg.sp_pos_deg:>10.2f}° "
-        f"v {msg.vel_dps:>7.1f}°/s I {msg.current_a:>5.2f} A{fault}"
+        f"v {msg.vel_dps:>7.1f}°/s I {msg.current_a:>5.2f} A{bus}{fault}"
     )
     return text if len(text) <= width else text[: width - 1] + "…"
+
+
+def _bus_voltage_v(client: Any) -> float:
+    """The bus voltage of the client's latest ``BoardHeartbeat`` (0: none yet)."""
+    heartbeat = getattr(client, "last_heartbeat", None)
+    return float(getattr(heartbeat, "bus_voltage_v", 0.0) or 0.0)
 
 
 def help_text(word: str | None = None) -> str:
@@ -545,7 +555,7 @@ class MonitorShell:
         """The bottom toolbar's text: the live status, or a broken link."""
         if self.link_error is not None:
             return f"link lost: {self.link_error}"[:TOOLBAR_COLUMNS]
-        return status_text(self._latest())
+        return status_text(self._latest(), bus_voltage_v=_bus_voltage_v(self.client))
 
     def execute(self, line: str) -> bool:
         """Run one typed line; False when the session should end. Never raises for any

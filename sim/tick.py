@@ -64,6 +64,7 @@ from firmware_model.tick import (
     FS_SP_ACC,
     FS_SP_POS,
     FS_SP_VEL,
+    SF_BUS_TICKS,
     current_stage,
     frame_telemetry,
     servo_stage,
@@ -118,6 +119,7 @@ def run_ticks(
     P, C, S, G, K = law
     fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf = fw
     brake_ticks, diag_ticks, diag_errors = sf[3], sf[4], sf[5]
+    bus_ticks = sf[SF_BUS_TICKS]
     enc_fault, frozen_counts, lcg, angle_frames, diag_frames = enc_faults
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps, values = sim[8:]
@@ -237,7 +239,7 @@ def run_ticks(
                 for j in range(n):
                     en_now[j] = enabled[j]
                 stage = BRIDGE
-                if current_stage(adc, en_now, P, C, S, G, K, fs, fi, oc_ticks):
+                if current_stage(adc, en_now, P, C, S, G, K, fs, fi, oc_ticks, bus_ticks):
                     ctx[CX_STAGE] = BRIDGE
                     return STOP_OC
             if stage == BRIDGE:

@@ -186,13 +186,19 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("nack", Nack(3, MsgType.MOVE, NackCode.TOO_HIGH, 5, 990.0), 10),
     ("nack_no_field", Nack(4, MsgType.MOVE, NackCode.DISABLED), 11),
     ("fault_report", FaultReport(777, Fault.FOLLOWING_ERROR, 10.5, 0x100, 10.0), 12),
+    (
+        "fault_report_bus",
+        FaultReport(3106, Fault.BUS_OVER_VOLTAGE, 27.125, 0x8, 27.0),
+        12,
+    ),
     ("gains", Gains(9, Loop.CURRENT, 0.25, 180.0, 0.0), 13),
-    ("limits", Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5), 14),
+    ("limits", Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0), 14),
     ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
     (
         "board_heartbeat",
         BoardHeartbeat(
-            100, S, State.IDLE, 0, 5, 1, 2, 30, 1, 0, 1, 2, 0, 32, 60, StreamState.RUNNING, 1
+            100, S, State.IDLE, 0, 5, 1, 2, 30, 1, 0, 1, 2, 0, 32, 60, StreamState.RUNNING, 1,
+            24.005,
         ),
         16,
     ),

@@ -176,6 +176,7 @@ def main(args: argparse.Namespace) -> int:
     from serial_protocol.host import BoardClient
     from serial_protocol.messages import (
         PROTOCOL_VERSION,
+        BoardHeartbeat,
         FaultReport,
         Malformed,
         Telemetry,
@@ -219,7 +220,9 @@ def main(args: argparse.Namespace) -> int:
         status = _StatusLine(enabled=not (args.quiet or args.interactive))
 
         def on_message(msg: Any) -> None:
-            if isinstance(msg, Telemetry):
+            if isinstance(msg, BoardHeartbeat):
+                status.bus_voltage_v = msg.bus_voltage_v
+            elif isinstance(msg, Telemetry):
                 if writer is not None:
                     writer.write(msg)
                 if live is not None:
@@ -478,6 +481,7 @@ class _StatusLine:
 
         self.enabled = enabled and sys.stderr.isatty()
         self.latest: Any = None
+        self.bus_voltage_v = 0.0  # the latest BoardHeartbeat's (0: none)
         self._clock = time.monotonic
         self._last_wall_s = 0.0
 
@@ -491,7 +495,7 @@ class _StatusLine:
         self._last_wall_s = now_wall_s
         from sim.shell import status_text
 
-        sys.stderr.write("\r\x1b[K" + status_text(msg, 79))
+        sys.stderr.write("\r\x1b[K" + status_text(msg, 79, self.bus_voltage_v))
         sys.stderr.flush()
 
     def say(self, text: str) -> None:

@@ -84,9 +84,12 @@ def _doc_layout(type_byte: int) -> list[tuple[str, str, str]]:
 
 
 def _doc_scale(wire: str, unit: str) -> float:
-    """Section 4.1: i32 positions and velocities in 1e-4, i16 currents in mA, i16 duty 1e-4."""
+    """Section 4.1: i32 positions and velocities in 1e-4, i16 currents in mA, i16 duty 1e-4,
+    u16 bus voltage in mV."""
     if wire == "i32":
         return 1e4
+    if wire == "u16" and unit == "V":
+        return 1e3
     if wire == "i16":
         return 1e3 if unit == "A" else 1e4
     return 1.0

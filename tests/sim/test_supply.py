@@ -6,11 +6,15 @@ the stiff supply, one implementation for every N."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from serial_protocol.exceptions import ConfigError
+from serial_protocol.messages import Fault
 from sim import loop
+from sim.config import load_bench
 from sim.oracle import replay
 from sim.params import SupplyParams
 from sim.reproduce import experiments
@@ -205,3 +209,36 @@ def test_lock_out_with_compensation_does_not_wind_the_current_loop_up():
     log = _fig6(**BUS, **{"controller.current.bus_compensation": True})
     assert np.all(log.fault == 0)
     assert np.abs(log.current_a).max() < 6.0  # measured 5.65 A
+
+
+BUS_CHECK = {**BUS, "safety.bus_voltage_check": True}
+
+
+def test_fig6_with_the_bus_the_firmware_trips_at_the_lock_out_or_before():
+    # At 500 Hz the rail climbs from 26.5 V to 28.1 V within one current-loop period: the
+    # default 27 V threshold is crossed in the same period as the chip's 28 V lock-out, and
+    # the firmware trips on the reading at its end (measured: both at t = 3.106 s).
+    log = _fig6(3.5, **BUS_CHECK)
+    t, v = log.t_s, log.bus_v
+    trip = int(np.argmax(log.fault != 0))
+    assert log.fault[trip] == Fault.BUS_OVER_VOLTAGE
+    assert v[trip - 1] <= 27.0 < v[trip]  # the first reading above the threshold trips
+    assert t[trip] == t[np.argmax(v >= 28.0)]
+    # The fault reaction brakes on the low sides: nothing more returns to the bus (it
+    # decays from its peak), and the axis stops within 20 deg of the target.
+    assert v.max() < 28.2 and v[-1] < v.max()
+    assert abs(log.true_pos_deg.max() - 3000.0) < 25.0  # measured 19.0 (596 without the trip)
+    # One period earlier: a 26 V threshold trips before the lock-out; the bus stays below 27 V.
+    early = _fig6(3.5, **BUS_CHECK, **{"safety.bus_over_voltage_v": 26.0})
+    assert early.fault.max() == Fault.BUS_OVER_VOLTAGE and early.bus_v.max() < 27.0
+
+
+def test_bad_thresholds_are_one_line(tmp_path):
+    bench = Path(__file__).resolve().parents[2] / "bench_configs" / "paper_bench.toml"
+    text = bench.read_text().replace("bus_under_voltage_v = 18.0", "bus_under_voltage_v = 28.0")
+    f = tmp_path / "b.toml"
+    f.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_bench(f)
+    msg = str(info.value)
+    assert "\n" not in msg and "bus_under_voltage_v = 28.0" in msg and "[safety]" in msg
