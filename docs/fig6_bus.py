@@ -81,7 +81,8 @@ def main(out: Path = Path(__file__).parent / "img" / "fig6_bus.png") -> Path:
         print(
             f"{name:58s} {m['overshoot_deg']:8.1f} ° {m['t_peak_s']:5.2f}s "
             f"{m['first_lockout_s']:7.3f}s {m['locked_s']:6.2f}s {m['bus_max_v']:6.2f}V "
-            f"{m['returned_j']:7.2f}J {m['peak_return_w']:5.1f}W {m['final_error_deg']:7.2f}° {m['fault_s']:5.3f}s"
+            f"{m['returned_j']:7.2f}J {m['peak_return_w']:5.1f}W {m['final_error_deg']:7.2f}° "
+            f"{m['fault_s']:5.3f}s"
         )
         ax_p.plot(log.t_s, log.true_pos_deg, label=name, lw=1.1)
         ax_v.plot(log.t_s, log.true_vel_dps, lw=1.0)
