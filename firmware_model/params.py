@@ -405,6 +405,7 @@ class SafetyParams(_Checked):
     thermal_tau_winding_s: float = _f(30.0, _rng(0.1, 3600.0))
     thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
     thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
+    sensor_mismatch_measured_bus: bool = _f(False, _boolean)
     bus_voltage_check: bool = _f(False, _boolean)
     bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))
     bus_under_voltage_v: float = _f(18.0, _rng(0.0, 100.0))

@@ -181,7 +181,8 @@ def edge_speed_dps(
 @kernel
 def sensor_mismatch_step(
     duty, current_a, vel_dps, live, supply_v, r_ohm, emf_v_per_dps, dt_s, window_s,
-    tolerance_dps, tolerance_ratio, step_max_deg, excess_deg,
+    tolerance_dps, tolerance_ratio, step_max_deg, excess_deg, bus_adc, v_per_bus_count,
+    bus_hold_counts,
 ):  # fmt: skip
     """One tick of the frozen / implausible sensor (runaway) check, for N members; updates
     ``excess_deg`` in place and returns its largest value over the live members.
@@ -205,9 +206,16 @@ def sensor_mismatch_step(
     the back-EMF speed is then the interval between the ends of 0 A and that value, and
     only a speed outside it counts.
 
+    The bridge's voltage is ``duty`` times the bus: ``supply_v`` as configured, or, with
+    ``v_per_bus_count`` > 0 (``[safety] sensor_mismatch_measured_bus``), the firmware's
+    own reading of the bus in the last period, ``bus_adc * v_per_bus_count`` (a rail lifted
+    by braking is then no error of the model). A reading at ``bus_hold_counts`` or above
+    (the BTN7971B may have locked its outputs out: the terminal voltage is not the duty's
+    and the IS pin reads nothing) holds the member's excess where it is for that tick.
+
     Args: ``duty, current_a, vel_dps`` float ``(N,)`` (the duty applied in the last period,
     the measured current in A); ``live`` bool ``(N,)``; ``r_ohm, emf_v_per_dps`` float
-    ``(N,)``; ``excess_deg`` float ``(N,)``.
+    ``(N,)``; ``excess_deg`` float ``(N,)``; ``bus_adc`` int ``(N,)`` (counts).
     """
     worst = 0.0
     keep = 1.0 - dt_s / window_s
@@ -215,8 +223,13 @@ def sensor_mismatch_step(
         if not live[j] or not emf_v_per_dps[j] > 0.0:  # off, or no EMF model to check by
             excess_deg[j] = 0.0
             continue
+        bus_v = supply_v
+        if v_per_bus_count > 0.0:
+            if bus_adc[j] >= bus_hold_counts:
+                continue  # perhaps locked out: no terminal equation this tick
+            bus_v = bus_adc[j] * v_per_bus_count
         v = vel_dps[j]
-        drive_dps = duty[j] * supply_v / emf_v_per_dps[j]
+        drive_dps = duty[j] * bus_v / emf_v_per_dps[j]
         emf_dps = drive_dps - r_ohm[j] * current_a[j] / emf_v_per_dps[j]
         if current_a[j] * duty[j] > 0.0:
             diff = abs(emf_dps - v)

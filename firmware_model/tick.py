@@ -25,6 +25,7 @@ from firmware_model.laws.layout import (
     C_BUS_ADC,
     C_INNOV,
     C_STUCK,
+    K_BUS_HOLD,
     P_DERATE,
     P_DUTY,
     P_IMEAS,
@@ -47,8 +48,11 @@ __all__ = [
     FS_TOL, FS_OC_THR, FS_STUCK_MIN_VEL, FS_OVER_SPEED, FS_PROF_T0, FS_PROF_DURATION,
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
     FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
-) = range(28)  # fmt: skip
-N_FS = 28
+    FS_MM_V_PER_BUS,
+) = range(29)  # fmt: skip
+N_FS = 29
+# FS_MM_V_PER_BUS: volts per count of the bus reading for the back-EMF check, 0 = it takes
+# the configured supply voltage (FS_SUPPLY_V).
 # fi: integers.
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
@@ -138,7 +142,7 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     worst = safety.sensor_mismatch_step(
         P[P_DUTY], P[P_IMEAS], P[P_VEL], enabled, fs[FS_SUPPLY_V], sf[SF_R], sf[SF_EMF],
         fs[FS_DT], fs[FS_MM_WINDOW], fs[FS_MM_TOL], fs[FS_MM_RATIO], fs[FS_MM_DEG] / 3.0,
-        mismatch,
+        mismatch, C[C_BUS_ADC], fs[FS_MM_V_PER_BUS], K[K_BUS_HOLD],
     )  # fmt: skip
     sensor = worst > fs[FS_MM_DEG]
     peak = sf[SF_PEAK]
