@@ -131,24 +131,24 @@ def reproduce(
         programs_demo.plot_stream(pg, out / "stream.png")
         paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png",
                   out / "programs.png", out / "stream.png"]  # fmt: skip
-    # Error bars for the metrics of REPORT.md section 4: each paper run again in noise
-    # copies (one batch per run, measured as the run itself).
-    from sim.reproduce.sensitivity import noise_spread  # not at the top: python -m runs it
+    # Error bars for REPORT.md sections 1, 2 and 4: each paper run again in noise copies
+    # (one batch per run, measured as the run itself).
+    from sim.reproduce.metrics import measure  # not at the top: python -m runs sensitivity
+    from sim.reproduce.sensitivity import metric_spread, noise_traces
 
     noise_runs = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
     noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
     if sc is not None:  # measured as scurve_extras measures them (Fig. 7 from the interrupt)
         noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in sc.fig7.runs]
         noise_runs += [(sc.fig8.trace, None)]
+    copies = max(sens.noise_copies, 2)
+    copy_traces = {
+        t.name: tuple(noise_traces(t.name, runner.experiments[t.name], copies))
+        for t, _ in noise_runs
+    }
     noise = {
-        trace.name: noise_spread(
-            trace.name,
-            runner.experiments[trace.name],
-            max(sens.noise_copies, 2),
-            limit_a,
-            from_t_s,
-        )
-        for trace, from_t_s in noise_runs
+        t.name: metric_spread([measure(c, limit_a, from_t) for c in copy_traces[t.name]])
+        for t, from_t in noise_runs
     }
     paths.append(out / "fig6_band.png")
     wall_s = time.monotonic() - wall0
@@ -169,6 +169,7 @@ def reproduce(
         programs=pg,
         sensitivity=sens,
         noise=noise,
+        noise_traces=copy_traces,
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

@@ -9,7 +9,8 @@ numbers they explain.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+import statistics
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from firmware_model.units import GEAR_RATIO, TOTAL_RATIO
@@ -25,7 +26,7 @@ from sim.reproduce import (
     seed002,
 )
 from sim.reproduce.experiments import Trace
-from sim.reproduce.metrics import RunMetrics
+from sim.reproduce.metrics import RunMetrics, replan_steps
 
 __all__ = ["ReportInputs", "write_report"]
 
@@ -49,12 +50,26 @@ class ReportInputs:
     sensitivity: band.SensitivityResult | None = None
     #: run name -> RunMetrics field -> (mean, sd) over noise realisations
     noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None
+    #: run name -> the run in noise realisations (``sensitivity.noise_traces``)
+    noise_traces: Mapping[str, Sequence[Trace]] | None = None
 
 
 def _f(x: float | None, digits: int = 1) -> str:
     if x is None or (isinstance(x, float) and math.isnan(x)):
         return "-"
     return f"{x:,.{digits}f}"
+
+
+def _pm(
+    inp: ReportInputs, run: str, fn: Callable[[Trace], float | None], scale: float = 1.0
+) -> str:
+    """``" ± sd"``: the standard deviation of ``fn`` over the noise realisations of run
+    ``run`` (times ``scale``), or ``""`` when the run has none (or ``fn`` is undefined)."""
+    traces = (inp.noise_traces or {}).get(run, ())
+    vals = [v for v in (fn(t) for t in traces) if v is not None and math.isfinite(v)]
+    if len(vals) < 2:
+        return ""
+    return f" ± {statistics.stdev(vals) * abs(scale):.2g}"
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
@@ -93,9 +108,12 @@ def _units(inp: ReportInputs) -> list[str]:
         "then sits near the top speed of a 24 V motor through 80:1, which is what makes 990 "
         "a natural cruise speed. I found nothing in the paper that contradicts this reading.",
         "* **Can the bench deliver it?** In the Fig. 6 run without planning the bench model, "
-        f"at its 5 A limit, gets from rest to 99 % of 990 deg/s in {_f(t_vmax, 3)} s (mean "
+        f"at its 5 A limit, gets from rest to 99 % of 990 deg/s in {_f(t_vmax, 3)}"
+        f"{_pm(inp, step.name, lambda t: fig6.time_to_speed_s(t, 0.99 * v_max))} s (mean "
         f"{_f(mean_acc, 0)} deg/s², {_f(mean_acc / 148.0, 0)} times the paper's a_max = 148) "
-        f"and holds 990 deg/s (peak {_f(top_dps)} with the velocity loop's overshoot) at 24 V: "
+        f"and holds 990 deg/s (peak {_f(top_dps)}"
+        f"{_pm(inp, step.name, lambda t: float(max(t.vel_dps)))} with the velocity loop's "
+        "overshoot) at 24 V: "
         "the paper's limits are within 24 V and 5 A. In the planned runs of Fig. 6-8 the "
         f"peak current is {_f(planned_peak, 2)} A (section 4). docs/model.md has the motor "
         "arithmetic.",
@@ -110,6 +128,10 @@ def _fig6_rows(inp: ReportInputs) -> list[list[str]]:
     jump_txt = ", ".join(f"{t:.2f} s ({a:+,.0f} deg/s²)" for t, a in jumps) or "none"
     reach = _first_reach(r.step)
     settle = fig6.settle_t_s(r.step, 0.5)
+
+    def sd(fn: Callable[[Trace], float | None]) -> str:  # the step's noise error bar
+        return _pm(inp, r.step.name, fn)
+
     peak_t = fig6.overshoot_peak_t_s(r.step)
     target = r.target_deg
     v_max = 990.0
@@ -130,19 +152,24 @@ def _fig6_rows(inp: ReportInputs) -> list[list[str]]:
          "Same two jumps, at the start and where the braking begins (|a| > 1000 deg/s² "
          "between frames); the second is earlier for the reason below."],
         ["Fig. 6, no planning: reaches the target", "about 3.5 s",
-         f"reaches {target:g} deg at {_f(reach, 2)} s; overshoot peak at {peak_t:.2f} s; "
-         f"within 0.5 deg for good from {_f(settle, 2)} s", why_arrival],
+         f"reaches {target:g} deg at {_f(reach, 2)}{sd(_first_reach)} s; overshoot peak at "
+         f"{peak_t:.2f}{sd(fig6.overshoot_peak_t_s)} s; within 0.5 deg for good from "
+         f"{_f(settle, 2)}{sd(lambda t: fig6.settle_t_s(t, 0.5))} s", why_arrival],
         ["Fig. 6, no planning: overshoot", "\"large\" (no number printed)",
-         f"{_f(sm.overshoot_deg)} deg ({_f(100 * sm.overshoot_deg / target, 2)} % of the move)",
+         f"{_f(sm.overshoot_deg)}{sd(lambda t: float(max(t.pos_deg)) - target)} deg "
+         f"({_f(100 * sm.overshoot_deg / target, 2)} % of the move)",
          "Same behaviour; the paper prints no number to compare."],
         ["Fig. 6, no planning: peak current", "not printed",
-         f"{_f(sm.peak_current_a, 2)} A (true {_f(sm.peak_true_current_a, 2)} A)",
+         f"{_f(sm.peak_current_a, 2)}{sd(lambda t: float(max(abs(t.current_a))))} A (true "
+         f"{_f(sm.peak_true_current_a, 2)}"
+         f"{sd(lambda t: float(max(abs(t.true_current_a))))} A)",
          "The current loop overshoots its 5 A clamp by a few percent at the step (below the "
          "over-current trip, so no fault)."],
         ["Fig. 6, trapezoid: velocity changes smoothly, no overshoot", "yes (curve)",
          f"largest planned step {_f(pm.max_sp_vel_step_dps, 3)} deg/s per tick, "
-         f"overshoot {_f(pm.overshoot_deg, 3)} deg, arrival "
-         f"{_f(pm.arrival_t_s, 2)} s",
+         f"overshoot {_f(pm.overshoot_deg, 3)}"
+         f"{_pm(inp, r.planned.name, lambda t: max(float(max(t.pos_deg)) - target, 0.0))} "
+         f"deg, arrival {_f(pm.arrival_t_s, 2)} s",
          "Agrees. The planned move (a triangle at 148 deg/s², peak "
          f"{_f(max(r.planned.sp_vel_dps))} deg/s) takes longer than the step, as in the "
          "paper's Fig. 6."],
@@ -177,7 +204,8 @@ def _fig7_rows(inp: ReportInputs) -> list[list[str]]:
 def _fig8_rows(inp: ReportInputs) -> list[list[str]]:
     rows = []
     prev = None
-    for row in inp.fig8.rows:
+    name, k = inp.fig8.trace.name, inp.fig8.time_scale
+    for n, row in enumerate(inp.fig8.rows):
         why = _fig8_why(row, prev)
         prev = row
         rows.append(
@@ -185,11 +213,17 @@ def _fig8_rows(inp: ReportInputs) -> list[list[str]]:
                 f"Table 1, S = {row.target_mdeg:.0e}".replace("e+0", "e"),
                 f"{row.paper_state}, {row.paper_vel_dps:g} deg/s, {row.paper_t_s:g} s",
                 f"{row.sim_state}, {_f(row.sim_sp_vel_dps)} deg/s planned "
-                f"({_f(row.sim_vel_dps)} measured), {row.sim_t_s:.3f} s",
+                f"({_f(row.sim_vel_dps)}{_pm(inp, name, _vel_at(n), k)} measured), "
+                f"{row.sim_t_s:.3f} s",
                 why,
             ]
         )
     return rows
+
+
+def _vel_at(n: int) -> Callable[[Trace], float]:
+    """The measured velocity when the board applied move ``n`` (as ``fig8`` reads it)."""
+    return lambda t: float(t.vel_dps[t.index_at(t.command_t_s[n])])
 
 
 def _fig8_why(row: fig8.ReplanRow, prev: fig8.ReplanRow | None) -> str:
@@ -291,10 +325,20 @@ def _metrics_table(
 def _replan_steps(inp: ReportInputs) -> list[str]:
     dt = 1.0 / inp.tick_hz
     a = inp.fig8.a_max_dps2
+    name = inp.fig8.trace.name
+
+    def measured_step(n: int) -> Callable[[Trace], float | None]:
+        # keyed by time as fig8 keys its rows (a move at rest may have no window)
+        def step(t: Trace) -> float | None:
+            steps = {round(tc, 6): v for tc, _, v in replan_steps(t)}
+            return steps.get(round(t.command_t_s[n], 6))
+
+        return step
+
     rows = [
         [f"{r.target_mdeg:.0e}".replace("e+0", "e"), f"{r.sim_t_s:.3f}",
-         _f(r.sp_vel_step_dps, 3), _f(r.vel_step_dps, 3)]
-        for r in inp.fig8.rows
+         _f(r.sp_vel_step_dps, 3), _f(r.vel_step_dps, 3) + _pm(inp, name, measured_step(n))]
+        for n, r in enumerate(inp.fig8.rows)
     ]  # fmt: skip
     return [
         f"Velocity steps around each replan of Fig. 8 (largest change between two frames "
@@ -724,7 +768,10 @@ def write_report(inp: ReportInputs, path) -> None:
             + (f"{copies} " if copies else "")
             + "encoder-noise realisations of the same run (one batch; measured on its log, "
             "not on telemetry, so the decoded current is the unrounded reading), where the "
-            "run has them; the values are the decoded run's.",
+            "run has them (Fig. 6-8 and the S-curve runs, here and in sections 1-2); the "
+            "values are the decoded run's. Seed 002's tables (section 6), the look-ahead and "
+            "the program runs (section 7) and the times of Fig. 6's velocity jumps are single "
+            "realisations.",
             "",
         ]
     lines += _metrics_table(runs, inp.noise)

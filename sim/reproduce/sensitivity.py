@@ -32,7 +32,9 @@ __all__ = [
     "TABLE1_A_MAX",
     "fig6_metrics",
     "fig8_metrics",
+    "metric_spread",
     "noise_spread",
+    "noise_traces",
     "plan_states_per_move",
     "table1_experiment",
 ]
@@ -119,6 +121,31 @@ def fig6_metrics(
     }
 
 
+def noise_traces(name: str, exp: Any, copies: int, seed: int = 0) -> list[Any]:
+    """The run ``exp`` in ``copies`` noise realisations (one batch: every member draws its
+    own encoder noise), each as the :class:`~sim.reproduce.experiments.Trace` its telemetry
+    would give (built from the log: a batch sends the telemetry of member 0 only)."""
+    from sim.reproduce.experiments import trace_from_log
+
+    if copies < 2:
+        raise ValueError(f"copies = {copies!r}: need at least 2 for a spread")
+    result = run(exp, batch=copies, seed=seed, overrides={"telemetry.decimation": 0})
+    return [trace_from_log(name, exp, result.log.member(k)) for k in range(copies)]
+
+
+def metric_spread(rows: Sequence[Any]) -> dict[str, tuple[float, float]]:
+    """``{field: (mean, standard deviation)}`` of every float field of the
+    :class:`~sim.reproduce.metrics.RunMetrics` ``rows``."""
+    import dataclasses as dc
+
+    out = {}
+    for f in dc.fields(rows[0]):
+        vals = [getattr(r, f.name) for r in rows]
+        if all(isinstance(v, float) for v in vals):
+            out[f.name] = (statistics.fmean(vals), statistics.stdev(vals))
+    return out
+
+
 def noise_spread(
     name: str,
     exp: Any,
@@ -127,28 +154,12 @@ def noise_spread(
     from_t_s: float | None = None,
     seed: int = 0,
 ) -> dict[str, tuple[float, float]]:
-    """The run ``exp`` in ``copies`` noise realisations (one batch: every member draws its
-    own encoder noise), measured as the reproduction measures its runs
-    (``sim.reproduce.metrics.measure`` from ``from_t_s`` on): ``{field: (mean, standard
-    deviation)}`` of every numeric :class:`~sim.reproduce.metrics.RunMetrics` field."""
-    import dataclasses as dc
-
-    from sim.reproduce.experiments import trace_from_log
+    """:func:`metric_spread` of :func:`noise_traces` measured as the reproduction measures
+    its runs (``sim.reproduce.metrics.measure`` from ``from_t_s`` on)."""
     from sim.reproduce.metrics import measure
 
-    if copies < 2:
-        raise ValueError(f"copies = {copies!r}: need at least 2 for a spread")
-    result = run(exp, batch=copies, seed=seed, overrides={"telemetry.decimation": 0})
-    rows = [
-        measure(trace_from_log(name, exp, result.log.member(k)), current_limit_a, from_t_s)
-        for k in range(copies)
-    ]
-    out = {}
-    for f in dc.fields(rows[0]):
-        vals = [getattr(r, f.name) for r in rows]
-        if all(isinstance(v, float) for v in vals):
-            out[f.name] = (statistics.fmean(vals), statistics.stdev(vals))
-    return out
+    traces = noise_traces(name, exp, copies, seed)
+    return metric_spread([measure(t, current_limit_a, from_t_s) for t in traces])
 
 
 def _spread(rows: list[dict[str, float]]) -> dict[str, tuple[float, float, float, float]]:

@@ -317,3 +317,31 @@ def test_report_states_which_effects_matter_per_figure(output):
     retuned = st.select(gains="classic", effect=None, copy=0)
     assert not any(st.metrics[k]["fault code"] for k in retuned)
     assert max(st.values("overshoot (deg)", retuned)) < max(st.values("overshoot (deg)", fixed))
+
+
+def test_report_metrics_carry_noise_error_bars(output):
+    """Sections 1, 2 and 4: the paper runs' metrics with the standard deviation over the
+    same run in noise realisations (one batch each), computed from those runs."""
+    import statistics
+
+    from sim.reproduce.metrics import measure
+
+    inp = output.inputs
+    text = (output.out_dir / "REPORT.md").read_text(encoding="utf-8")
+    names = [inp.fig6.step.name, inp.fig6.planned.name, inp.fig8.trace.name]
+    names += [r.trace.name for r in inp.fig7.runs]
+    for name in names:
+        assert len(inp.noise_traces[name]) == 3 and name in inp.noise
+    step = inp.noise_traces[inp.fig6.step.name]
+    over = [measure(t, 5.0).overshoot_deg for t in step]
+    # the copies are the same experiment in other noise realisations
+    assert all(abs(o - inp.fig6.step_metrics.overshoot_deg) < 0.5 for o in over)
+    assert statistics.stdev(over) > 0.0
+    assert f"{inp.fig6.step_metrics.overshoot_deg:,.3f} ± {statistics.stdev(over):.2g}" in text
+    # Table 1's measured velocity at each replan (section 2)
+    k = inp.fig8.time_scale
+    for n, row in enumerate(inp.fig8.rows[1:], start=1):
+        vals = [
+            float(t.vel_dps[t.index_at(t.command_t_s[n])]) * k for t in inp.noise_traces["fig8"]
+        ]
+        assert f"({row.sim_vel_dps:,.1f} ± {statistics.stdev(vals):.2g} measured)" in text
