@@ -188,6 +188,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.over_current_trip = v(t, ok); m.travel_min = v(t, ok); m.travel_max = v(t, ok);
         m.over_speed = v(t, ok); m.over_current_max = v(t, ok);
         m.bus_over_voltage = v(t, ok); m.bus_under_voltage = v(t, ok);
+        m.thermal_trip = v(t, ok); m.winding_estimate = v(t, ok);
         return tt_encode_limits(p, &m);
     }
     case TT_STATUS: {

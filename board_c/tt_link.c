@@ -459,6 +459,8 @@ size_t tt_encode_limits(uint8_t *out, const tt_limits *m)
     put_u32(out, &at, m->over_current_max);
     put_u32(out, &at, m->bus_over_voltage);
     put_u32(out, &at, m->bus_under_voltage);
+    put_u32(out, &at, m->thermal_trip);
+    put_u32(out, &at, m->winding_estimate);
     return at;
 }
 

@@ -183,6 +183,7 @@ typedef struct {
     uint32_t v_max, a_max, current_limit, following_error, over_current_trip, travel_min,
         travel_max, over_speed, over_current_max; /* f32 bits */
     uint32_t bus_over_voltage, bus_under_voltage; /* appended: f32 bits, 0 = off */
+    uint32_t thermal_trip, winding_estimate; /* appended: f32 bits, 0 = off */
 } tt_limits;
 typedef struct {
     uint16_t cmd_id;

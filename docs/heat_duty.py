@@ -132,8 +132,10 @@ def main() -> None:
     ax_i.plot(t_min, np.abs(log.current_a), lw=0.3, color="0.6", label="|true current|")
     ax_i.plot(s["t_s"] / 60.0, s["limit_a"], lw=1.5, color="C3", label="firmware current limit")
     if trips.size:
-        ax_i.annotate("trip: 0.4 s of dynamic braking, then off", (t_min[trips[0]], 7.2),
-                      xytext=(4, 0), textcoords="offset points", fontsize=8, color="red")  # fmt: skip
+        ax_i.annotate(
+            "trip: 0.4 s of dynamic braking, then off", (t_min[trips[0]], 7.2),
+            xytext=(4, 0), textcoords="offset points", fontsize=8, color="red",
+        )  # fmt: skip
     ax_i.set_ylim(0.0, 8.0)
     ax_i.set_ylabel("current (A)")
     ax_i.set_xlabel("time (min)")

@@ -911,6 +911,10 @@ class Firmware:
                 over_current_max_a=s.over_current_a,
                 bus_over_voltage_v=s.bus_over_voltage_v if s.bus_voltage_check else 0.0,
                 bus_under_voltage_v=s.bus_under_voltage_v if s.bus_voltage_check else 0.0,
+                thermal_trip_c=s.thermal_trip_c if s.thermal_protection else 0.0,
+                winding_estimate_c=(
+                    float(self._thermal_est[0, 0]) if s.thermal_protection else 0.0
+                ),
             )  # fmt: skip
         if isinstance(msg, GetFault):
             if not 0 <= msg.bit <= 31:

@@ -357,6 +357,11 @@ _ROWS: tuple[_Row, ...] = (
             _f("over_current_max_a", "f32", "A", "ceiling of over_current_trip_a (read-only)"),
             _f("bus_over_voltage_v", "f32", "V", "bus over-voltage trip; 0 = off (read-only)"),
             _f("bus_under_voltage_v", "f32", "V", "bus under-voltage trip; 0 = off (read-only)"),
+            _f("thermal_trip_c", "f32", "degC", "thermal protection's trip; 0 = off (read-only)"),
+            _f(
+                "winding_estimate_c", "f32", "degC",
+                "thermal protection's winding estimate; 0 = off (read-only)",
+            ),  # fmt: skip
         ),
     ),
     _Row(

@@ -715,6 +715,9 @@ class Limits:
     # Appended (extension rule): the bus voltage trips' thresholds, 0 = the check off.
     bus_over_voltage_v: float = 0.0
     bus_under_voltage_v: float = 0.0
+    # Appended (extension rule): the thermal protection (read-only; 0, 0 when it is off).
+    thermal_trip_c: float = 0.0
+    winding_estimate_c: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -192,7 +192,11 @@ FRAMES: list[tuple[str, Any, int]] = [
         12,
     ),
     ("gains", Gains(9, Loop.CURRENT, 0.25, 180.0, 0.0), 13),
-    ("limits", Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0), 14),
+    (
+        "limits",
+        Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0, 120.0, 41.5),
+        14,
+    ),
     ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
     (
         "board_heartbeat",

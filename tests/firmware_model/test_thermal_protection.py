@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from firmware_model.params import SafetyParams
-from serial_protocol.messages import Fault, FaultFlag, FaultReport
+from serial_protocol.messages import Fault, FaultFlag, FaultReport, Limits
 from sim import cli, loop
 from sim.reproduce import experiments
 
@@ -128,3 +128,23 @@ def test_a_bad_protection_value_in_a_bench_file_is_exit_status_2(tmp_path, capsy
     assert status == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "thermal_derate_c = 150.0" in lines[0] and "[safety]" in lines[0]
+
+
+def test_the_threshold_and_the_estimate_are_read_with_get_limits():
+    # Limits' appended read-only fields, through the wire: the trip and the estimate
+    # (0, 0 with the protection off); 30 s into the stall the estimate is past 40 degC.
+    from sim.config import ScriptedCommand
+
+    base = experiments.with_duration(experiments.load("fig6"), 30.5)
+    exp = dataclasses.replace(
+        base, commands=(*base.commands, ScriptedCommand(30.0, "get_limits", ()))
+    )
+    for on in (True, False):
+        over = {**STALL, "safety.thermal_protection": on}
+        result = loop.run(exp, seed=0, overrides=over)
+        (reply,) = [m for m in result.replies if isinstance(m, Limits)]
+        if on:
+            assert reply.thermal_trip_c == 120.0
+            assert 60.0 < reply.winding_estimate_c < 120.0
+        else:
+            assert (reply.thermal_trip_c, reply.winding_estimate_c) == (0.0, 0.0)
