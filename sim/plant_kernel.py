@@ -322,11 +322,10 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
     return ni, np_, nw, ntw, nwp
 
 
-# The member loop's copies of key and _excursion, inlined into it (numba IR): a call with
-# array arguments costs a reference count increment and decrement per array, which was a
-# third of a member's step. One source; step (the rare path) calls the plain ones.
+# The member loop's copy of key, inlined into it (numba IR; one source, step calls the plain
+# one): N = 1 ran ~10 % slower calling it (the call, not reference counts: there are none).
+# _excursion is called (inlining its copy cost ~a third of the cold compile).
 _key_inline = kernel(error_model="numpy", inline="always")(key.py_func)
-_excursion_inline = kernel(error_model="numpy", inline="always")(_excursion.py_func)
 
 
 @kernel(error_model="numpy")
@@ -422,6 +421,8 @@ def step_members(
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do."""
     events = 0
+    # The whole step's level as a typed int64 (a literal 0 would compile a second _advance).
+    top_level = np.int64(0)
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
     g = 0
@@ -446,14 +447,12 @@ def step_members(
         # mode ends in it and leaves it nowhere in between (exactly step's first pass).
         row = sl[k0]
         if row >= 0 and levels > 0 and budget > 0:
-            ni, np_, nw, ntw, nwp = _advance(phis, row, 0, i, p, w, tw, wp, d)
+            ni, np_, nw, ntw, nwp = _advance(phis, row, top_level, i, p, w, tw, wp, d)
             k1 = _key_inline(ni, nw, ntw, nwp, d, en, kc)
             if k1 == k0:
                 bridge_on = k0 // _MECH == _B_ON
                 if not (bridge_on and -icl <= i <= icl and (ni > icl or ni < -icl)) and not (
-                    _excursion_inline(
-                        i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc
-                    )
+                    _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc)
                 ):
                     out_x[j, 0] = ni
                     out_x[j, 1] = np_
