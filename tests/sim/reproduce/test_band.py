@@ -168,3 +168,37 @@ def test_the_sensitivity_module_refuses_bad_seeds_in_one_line(seeds, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and f"--seeds: '{seeds}'" in err[0]
+
+
+def test_the_de_retune_is_the_tuners_and_passes_its_gate():
+    """``--retune de``: the tuner's differential evolution on the member's own bench (its
+    default scenario), from the classic gains: its result passes the optimiser's gate and
+    costs no more than the classic start on that scenario."""
+    from sim.tuning.cost import CostWeights
+    from sim.tuning.evaluate import evaluate
+    from sim.tuning.scenarios import DEFAULT_SCENARIO, scenario
+
+    bench = load("fig6").bench
+    motor = band.Motor(kt=0.7)
+    classic = band.retune(bench, motor, "classic")
+    de = band.retune(bench, motor, "de")
+    model = {k: v for k, v in classic.items() if k not in GainSet.from_bench(bench).overrides()}
+    assert {k: de[k] for k in model} == model  # the same feed-forward model
+    own = apply_overrides(bench, {**motor.overrides(bench), **model})
+    g_classic = GainSet.from_bench(apply_overrides(own, classic))
+    g_de = GainSet.from_bench(apply_overrides(own, de))
+    assert g_de != g_classic
+    assert linear.rejection_reasons(own, g_de, linear.MarginSpec()) == []
+    scen = [scenario(DEFAULT_SCENARIO, own, time_scale=4.0, tail_s=1.0)]
+    ev = evaluate(scen, [g_classic, g_de], weights=CostWeights())
+    assert ev.cost[1] <= ev.cost[0]
+
+
+def test_the_full_study_members():
+    full = band.fig6_band_members(design="factorial", noise_copies=5, effects_everywhere=True)
+    n_eff = len(band.EFFECTS)
+    assert len(full) == 27 * 3 + 4 * 2 + 27 * 2 * n_eff
+    assert len(set(full)) == len(full)
+    cheap = band.fig6_band_members()
+    assert len(cheap) == 15 * 3 + 2 * 2 + n_eff
+    assert {m.motor for m in cheap if m.effect} == {band.Motor()}
