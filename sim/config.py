@@ -288,6 +288,7 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("supply", "brake_resistor_ohm"): (0.0, 1e4, "a brake resistor"),
     ("supply", "brake_on_v"): (5.5, 60.0, "a brake chopper's threshold"),
     ("supply", "sense_divider_ratio"): (1.0, 1000.0, "a divider into an ADC pin"),
+    ("supply", "bus_quiet_v"): (0.0, 1.0, "a swing of the rail within a period, not a fault"),
     ("bridge", "ov_lockout_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
     ("bridge", "ov_release_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
     ("bridge", "uv_lockout_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),

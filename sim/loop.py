@@ -306,16 +306,14 @@ class Simulation:
         self._adc_row = 0
         self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
         self._n_total = plant.total_ratio
-        # With the bus model the plant steps sub-steps of a current-loop period (sim.supply):
-        # its tables are for the sub-step, located to the same finest step.
+        # With the bus model the plant steps a whole current-loop period or sub-steps of it
+        # (sim.supply): the sub-step is a level of the period's tables.
         self.bus = Bus(plant, n, self.h_s)
         # The motor's temperatures ([thermal] model, sim.thermal), advanced every period.
         self.heat = Heat(plant, n, self.h_s)
-        sub_levels = self.bus.substeps.bit_length() - 1
         self.plant = Plant(
-            plant, n, self.h_s / self.bus.substeps,
-            max(0, bench.loop.event_levels - sub_levels),
-        )  # fmt: skip
+            plant, n, self.h_s, max(bench.loop.event_levels, self.bus.substep_level)
+        )
         self._x = np.zeros((n, 5))
         self._duty = np.zeros(n)
         self._enable = np.zeros(n, dtype=bool)

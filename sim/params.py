@@ -76,6 +76,9 @@ class SupplyParams:
     over-voltage lock-out (``[bridge] ov_lockout_v``) unless a brake chopper takes it.
     ``sense_divider_ratio``: the board's divider from the bus to an STM32 ADC channel (the
     ADC of ``[current_sense]``), which the firmware reads every current-loop period.
+    ``bus_quiet_v``: a current-loop period whose rail swings by at most this much (and
+    meets no switch: ``sim.supply``, "The adaptive step") is one exact plant step instead
+    of ``bus_substeps``; 0 = always the sub-steps.
     """
 
     voltage_v: float = 24.0
@@ -86,6 +89,7 @@ class SupplyParams:
     brake_resistor_ohm: float = 0.0
     brake_on_v: float = 26.5
     bus_substeps: int = 16
+    bus_quiet_v: float = 0.001
     sense_divider_ratio: float = 11.0
 
     def __post_init__(self) -> None:
@@ -97,7 +101,7 @@ class SupplyParams:
             and bool(np.all(np.asarray(self.sense_divider_ratio) >= 1)),
             "must be finite and >= 1 (a divider)",
         )
-        _non_negative(self, "logic_load_a", "brake_resistor_ohm")
+        _non_negative(self, "logic_load_a", "brake_resistor_ohm", "bus_quiet_v")
         # The BTN7971B locks out above 27.8 V (datasheet V_OV(OFF) min).
         _check(
             self,

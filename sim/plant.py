@@ -558,7 +558,7 @@ class Plant:
             start, events, group, need = plant_kernel.step_members(
                 x, duty, enable, self._last_mech, known, start, self._group, self._slots,
                 self._phis, self._rates, self._consts, self.event_levels,
-                self.split_budget, xn, self._last_mech,
+                self.split_budget, xn, self._last_mech, 0,
             )  # fmt: skip
             self.n_events += events
             if need < 0:

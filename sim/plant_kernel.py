@@ -331,10 +331,10 @@ _key_inline = kernel(error_model="numpy", inline="always")(key.py_func)
 @kernel(error_model="numpy")
 def step(
     i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
-    stack_key,
+    stack_key, level0,
 ):  # fmt: skip
-    """One plant step of ``h_s`` with ``(d, en)`` held, from mode ``start_key`` (-1: work
-    it out), as ``Plant.update`` describes: halve a step whose end mode differs from
+    """One plant step of ``h_s / 2**level0`` with ``(d, en)`` held, from mode ``start_key``
+    (-1: work it out), as ``Plant.update`` describes: halve a step whose end mode differs from
     its start mode (or that leaves and re-enters it) up to ``levels`` times,
     within ``budget`` halvings; take the first half in the start mode, the second in the
     mode where the first ended.
@@ -351,7 +351,7 @@ def step(
     # Pending sub-steps (level, start key or -1 for the mode of the state reached), last
     # in first out: a halved step pushes its second half, then its first. ``stack_level``,
     # ``stack_key``: (2 * levels + 2,) int64 scratch, the caller's (no allocation per step).
-    stack_level[0] = 0
+    stack_level[0] = level0
     stack_key[0] = start_key
     top = 1
     n_events = 0
@@ -412,29 +412,30 @@ def step(
 @kernel(error_model="numpy", _nrt=True)
 def step_members(
     x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
-    budget, out_x, out_keys,
+    budget, out_x, out_keys, level0,
 ):  # fmt: skip
-    """``step`` for members ``start, start + 1, ...`` of ``x`` (``(N, 5)``) with inputs
+    """``step`` of ``h_s / 2**level0`` (``sim.supply``'s sub-steps: ``level0`` > 0; the
+    finest step stays ``h_s / 2**levels``) for members ``start, start + 1, ...`` of ``x``
+    (``(N, 5)``) with inputs
     ``duty`` / ``enable`` (``(N,)``), member j using parameter set ``group[j]``; new states
     into ``out_x``, each member's mechanical end mode into ``out_keys``. ``keys_in``: the
     mechanical modes of ``x`` if ``known`` (``x`` is the last ``out_x``). Returns ``(next,
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do."""
     events = 0
-    # The whole step's level as a typed int64 (a literal 0 would compile a second _advance).
-    top_level = np.int64(0)
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
     g = 0
     kc = consts[0]
-    h_s = kc[_H_S]
+    scale = 1.0 / (1 << level0)
+    h_s = kc[_H_S] * scale
     sl = slots[0]
     for j in range(start, x.shape[0]):
         if not shared:
             g = group[j]
             kc = consts[g]
             sl = slots[g]
-            h_s = kc[_H_S]
+            h_s = kc[_H_S] * scale
         i, p, w, tw, wp = x[j, 0], x[j, 1], x[j, 2], x[j, 3], x[j, 4]
         d = duty[j]
         en = enable[j]
@@ -446,8 +447,8 @@ def step_members(
         # The common case first, without step's sub-step stack: the whole step in the start
         # mode ends in it and leaves it nowhere in between (exactly step's first pass).
         row = sl[k0]
-        if row >= 0 and levels > 0 and budget > 0:
-            ni, np_, nw, ntw, nwp = _advance(phis, row, top_level, i, p, w, tw, wp, d)
+        if row >= 0 and levels > level0 and budget > 0:
+            ni, np_, nw, ntw, nwp = _advance(phis, row, level0, i, p, w, tw, wp, d)
             k1 = _key_inline(ni, nw, ntw, nwp, d, en, kc)
             if k1 == k0:
                 bridge_on = k0 // _MECH == _B_ON
@@ -466,7 +467,7 @@ def step_members(
         size = 2 * levels + 2
         r = step(
             i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc,
-            np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64),
+            np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), level0,
         )  # fmt: skip
         if r[7] >= 0:
             return j, events, g, r[7]
@@ -492,5 +493,5 @@ def warm_up(event_levels: int = 20) -> None:
     step_members(
         x, np.zeros(1), np.ones(1, dtype=bool), ints, True, 0, ints,
         np.full((1, 1), -1, dtype=np.int64), np.empty((0, event_levels + 1, 5, 7)),
-        np.empty((0, 3, 7)), kc, event_levels, 1, np.empty((1, 5)), ints,
+        np.empty((0, 3, 7)), kc, event_levels, 1, np.empty((1, 5)), ints, 0,
     )  # fmt: skip

@@ -18,7 +18,7 @@ from sim.config import load_bench
 from sim.oracle import replay
 from sim.params import SupplyParams
 from sim.reproduce import experiments
-from sim.supply import rail_advance
+from sim.supply import SUB_QUIET, rail_advance
 
 C_F = 2200e-6
 VS, RS = 24.0, 0.05
@@ -167,6 +167,7 @@ def test_batch_members_are_the_one_axis_runs():
     ("key", "value", "words"),
     [
         ("bus_substeps", 3, "power of two"),
+        ("bus_quiet_v", -0.001, ">= 0"),
         ("bulk_capacitance_uf", 0.0, "> 0"),
         ("bus_model", 1, "true or false"),
         ("brake_on_v", 23.0, "above the supply"),
@@ -242,3 +243,97 @@ def test_bad_thresholds_are_one_line(tmp_path):
         load_bench(f)
     msg = str(info.value)
     assert "\n" not in msg and "bus_under_voltage_v = 28.0" in msg and "[safety]" in msg
+
+
+# ------------------------------------------------------------------ the adaptive step
+
+
+def test_rail_profile_is_the_rails_exact_solution_for_a_ramped_current():
+    # A current ramped linearly (r'' = 0: rail_profile's series is then exact) against
+    # solve_ivp, the supply conducting and blocked; its mean, by quadrature.
+    from scipy.integrate import solve_ivp
+
+    from sim.supply import rail_profile
+
+    h = 0.002
+    for v0, r0, r1 in ((23.86, 2.9, 3.1), (23.9, 0.5, 2.5), (24.3, -1.0, -0.4), (24.5, 0.2, 0.6)):
+        rate = (r1 - r0) / h
+        got_v1, got_mean = rail_profile(v0, r0, r1, 0.5 * (r0 + r1), rate, rate, h, VS, RS, C_F)
+
+        def f(t, v, r0=r0, rate=rate):
+            supply = (VS - v[0]) / RS if v[0] < VS else 0.0
+            return [(supply - (r0 + rate * t)) / C_F]
+
+        sol = solve_ivp(f, (0.0, h), [v0], rtol=1e-12, atol=1e-14, dense_output=True)
+        ts = np.linspace(0.0, h, 40001)
+        mean = np.trapezoid(sol.sol(ts)[0], ts) / h
+        assert got_v1 == pytest.approx(sol.y[0, -1], abs=1e-9)
+        assert got_mean == pytest.approx(mean, abs=1e-9)
+
+
+def _replay_errors(quiet_v: float, t_end_s: float, k0: int):
+    """``(bus V, current A, motor angle rev, periods taken whole)``: the largest differences
+    of Fig. 6 with the bus model from ``solve_ivp`` on its recorded inputs from tick ``k0``."""
+    holder = {}
+
+    class Recording(loop.Simulation):
+        def __init__(self, *a, **k):
+            k["record_inputs"] = True
+            super().__init__(*a, **k)
+            holder["sim"] = self
+
+    saved = loop.Simulation
+    loop.Simulation = Recording
+    try:
+        exp = experiments.with_duration(experiments.load("fig6"), t_end_s)
+        log = loop.run(exp, seed=0, overrides={**BUS, "supply.bus_quiet_v": quiet_v}).log
+    finally:
+        loop.Simulation = saved
+    sim = holder["sim"]
+    duty, enable = sim.inputs()
+    k1 = len(log)
+    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
+    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
+    return (
+        np.abs(ref[:, 5] - log.bus_v[k0 + 1 : k1]).max(),
+        np.abs(ref[:, 0] - log.current_a[k0 + 1 : k1]).max(),
+        np.abs(ref[:, 1] - log.motor_pos_rad[k0 + 1 : k1]).max() / (2 * math.pi),
+        int(sim.bus.sub[SUB_QUIET]),
+    )
+
+
+def test_the_adaptive_step_keeps_the_sub_steps_accuracy_where_the_rail_is_quiet():
+    # Fig. 6's first 0.5 s (the current at its 5 A limit, the duty rising with the speed:
+    # the rail sags 1-2 mV a period): against solve_ivp on the recorded inputs, the
+    # adaptive step (whole periods where the rail swings less than bus_quiet_v = 1 mV) and
+    # the 16 sub-steps everywhere (bus_quiet_v = 0).
+    bus, cur, rev, whole = _replay_errors(1e-3, 0.5, 0)
+    bus0, cur0, rev0, whole0 = _replay_errors(0.0, 0.5, 0)
+    assert whole0 == 0 and whole > 60  # measured 77 of the 250 periods taken whole
+    assert bus < 1e-4 and bus0 < 1e-4  # measured 3.1e-5 and 3.1e-5 V
+    assert cur < 5e-4 and cur0 < 1e-4  # 1.1e-4 and 5.1e-5 A
+    assert rev < 1e-4 and rev0 < 1e-4  # 4.2e-5 and 3.9e-5 rev
+
+
+def test_off_the_adaptive_step_is_the_sub_steps_everywhere():
+    # bus_quiet_v = 0: every period in sub-steps (the tree before, bit for bit: compared on
+    # Fig. 6, 4 s, every column); on, most of Fig. 6's first 3 s are taken whole.
+    exp = experiments.with_duration(experiments.load("fig6"), 3.0)
+    holder = {}
+
+    class Keep(loop.Simulation):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            holder["sim"] = self
+
+    saved = loop.Simulation
+    loop.Simulation = Keep
+    try:
+        off = loop.run(exp, seed=0, overrides={**BUS, "supply.bus_quiet_v": 0.0}).log
+        assert holder["sim"].bus.sub[SUB_QUIET] == 0
+        on = loop.run(exp, seed=0, overrides=BUS).log
+        assert holder["sim"].bus.sub[SUB_QUIET] > 1000  # of 1,500 periods (measured 1,320)
+    finally:
+        loop.Simulation = saved
+    assert np.abs(on.true_pos_deg - off.true_pos_deg).max() < 5e-3  # deg (measured 3.5e-4)
+    assert np.abs(on.bus_v - off.bus_v).max() < 2e-3  # V (4.8e-4)
