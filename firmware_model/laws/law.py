@@ -150,8 +150,10 @@ class Law:
         k[K_ARR], k[K_DELAY] = self.arr, d
         k[K_I_LIMIT_A] = params.limits.current_limit_a
         k[K_A_PER_ADC_Q] = int(round(self.a_per_adc * (1 << fx.GAIN_FRAC_BITS)))
-        k[K_HALF_Q] = fixed_q.qgain(0.5)
-        k[K_INV_SUPPLY_Q] = fixed_q.qgain(1.0 / self.supply_v)
+        # The kernel's Python (the same operations): calling the compiled one from here
+        # would load one more kernel from numba's cache in every fresh process.
+        k[K_HALF_Q] = fixed_q.qgain.py_func(0.5)
+        k[K_INV_SUPPLY_Q] = fixed_q.qgain.py_func(1.0 / self.supply_v)
         k[K_BUS_COMP] = float(cur.bus_compensation)
         k[K_V_PER_BUS_ADC] = cur.v_per_bus_adc
         k[K_V_PER_BUS_ADC_Q] = int(round(cur.v_per_bus_adc * (1 << fx.GAIN_FRAC_BITS)))
