@@ -36,6 +36,7 @@ VARIANTS: dict[str, dict[str, object]] = {
         **BUS,
         "controller.current.regen_bus_current_limit_a": 0.05,
     },
+    "bus + TVS, V_BR 26.7 V, R_d 0.7 Ω (no chopper)": {**BUS, "supply.tvs_breakdown_v": 26.7},
     "bus + firmware bus trip at 27 V (no chopper)": {
         **BUS,
         "safety.bus_voltage_check": True,

@@ -289,6 +289,8 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("supply", "brake_on_v"): (5.5, 60.0, "a brake chopper's threshold"),
     ("supply", "sense_divider_ratio"): (1.0, 1000.0, "a divider into an ADC pin"),
     ("supply", "bus_quiet_v"): (0.0, 1.0, "a swing of the rail within a period, not a fault"),
+    ("supply", "tvs_breakdown_v"): (0.0, 60.0, "a TVS across a 24 V rail"),
+    ("supply", "tvs_resistance_ohm"): (0.01, 100.0, "a TVS's dynamic resistance"),
     ("bridge", "ov_lockout_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
     ("bridge", "ov_release_v"): (20.0, 60.0, "a bridge's over-voltage lock-out"),
     ("bridge", "uv_lockout_v"): (1.0, 20.0, "a bridge's under-voltage lock-out"),

@@ -84,7 +84,8 @@ def derivative_bus(
 ) -> np.ndarray:
     """dy/dt of the plant with its rail, ``y`` = the 5 states of ``sim.plant`` and the rail
     voltage (V); ``locked``: the bridge's outputs off (lock-out). The rail law is
-    ``sim.supply``'s without a brake chopper (the oracle refuses one). ``current_dir``
+    ``sim.supply``'s without a brake chopper (the oracle refuses one), with its TVS if any.
+    ``current_dir``
     (+-1, outputs off) holds the diodes' side, as ``motor_dir`` the gearbox's, for an
     integrator that stops at the current's zero as an event."""
     duty, enable = u
@@ -99,7 +100,9 @@ def derivative_bus(
         dx[0] = (-current_dir * (v + 2.0 * br.diode_drop_v) - r * i - emf) / params.motor.l_h
     i_out = duty * i if conducting else -abs(i)
     i_sup = (sup.voltage_v - v) / sup.source_resistance_ohm if v < sup.voltage_v else 0.0
-    dv = (i_sup - i_out - sup.logic_load_a) / sup.capacitance_f
+    vt = sup.tvs_breakdown_v
+    i_tvs = (v - vt) / sup.tvs_resistance_ohm if 0.0 < vt < v else 0.0
+    dv = (i_sup - i_out - sup.logic_load_a - i_tvs) / sup.capacitance_f
     return np.append(dx, dv)
 
 

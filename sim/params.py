@@ -76,6 +76,8 @@ class SupplyParams:
     over-voltage lock-out (``[bridge] ov_lockout_v``) unless a brake chopper takes it.
     ``sense_divider_ratio``: the board's divider from the bus to an STM32 ADC channel (the
     ADC of ``[current_sense]``), which the firmware reads every current-loop period.
+    ``tvs_breakdown_v`` (0: none) / ``tvs_resistance_ohm``: a TVS diode across the rail,
+    conducting ``(v - V_br) / R_d`` above its breakdown (instead of a chopper).
     ``bus_quiet_v``: a current-loop period whose rail swings by at most this much (and
     meets no switch: ``sim.supply``, "The adaptive step") is one exact plant step instead
     of ``bus_substeps``; 0 = always the sub-steps.
@@ -90,6 +92,8 @@ class SupplyParams:
     brake_on_v: float = 26.5
     bus_substeps: int = 16
     bus_quiet_v: float = 0.001
+    tvs_breakdown_v: float = 0.0
+    tvs_resistance_ohm: float = 0.7
     sense_divider_ratio: float = 11.0
 
     def __post_init__(self) -> None:
@@ -101,7 +105,24 @@ class SupplyParams:
             and bool(np.all(np.asarray(self.sense_divider_ratio) >= 1)),
             "must be finite and >= 1 (a divider)",
         )
-        _non_negative(self, "logic_load_a", "brake_resistor_ohm", "bus_quiet_v")
+        _non_negative(self, "logic_load_a", "brake_resistor_ohm", "bus_quiet_v", "tvs_breakdown_v")
+        _positive(self, "tvs_resistance_ohm")
+        tvs = np.asarray(self.tvs_breakdown_v)
+        _check(
+            self,
+            "tvs_breakdown_v",
+            bool(
+                np.all(
+                    (tvs == 0)
+                    | (
+                        (tvs > np.asarray(self.voltage_v))
+                        & (np.asarray(self.brake_resistor_ohm) == 0)
+                    )
+                )
+            ),
+            "must be 0 (none) or above the supply voltage, and no brake chopper with it "
+            "(the model takes one clamp: brake_resistor_ohm = 0)",
+        )
         # The BTN7971B locks out above 27.8 V (datasheet V_OV(OFF) min).
         _check(
             self,

@@ -8,6 +8,7 @@ draw from it (negative while braking returns energy)::
     i_sup   = (V_s - v) / R_s   while v < V_s, else 0      (the supply's output diode)
     i_brake = the chopper's current: 0 below V_b; at V_b it holds the rail there while the
               returned current is at most V_b / R_b; above, the resistor is on: v / R_b
+              (or a TVS's, ``[supply] tvs_breakdown_v`` > 0: (v - V_br) / R_d above V_br)
 
 The bridge draws ``duty * i`` while it conducts (sign-magnitude PWM, averaged) and returns
 ``|i|`` through its body diodes while disabled or locked out; its output is ``duty * v``.
@@ -63,9 +64,9 @@ __all__ = [
 # cfg[j, ...] columns.
 (
     S_VS, S_RS, S_C, S_LOAD, S_RB, S_VB, S_OV_OFF, S_OV_ON, S_UV_OFF, S_UV_ON, S_VREF, S_VD2,
-    S_H, S_QUIET, S_L, S_ICL,
-) = range(16)  # fmt: skip
-N_SUPPLY = 16
+    S_H, S_QUIET, S_L, S_ICL, S_VOFF,
+) = range(17)  # fmt: skip
+N_SUPPLY = 17
 # sub[...]: the period's progress (resumed after a mode load): the sub-step reached, the
 # sub-steps per period, the phase (PH_*), the sub-step's table level, and two counters
 # (statistics only): the member-periods taken whole, and those of them that needed the
@@ -78,11 +79,13 @@ ST_SUB, ST_WHOLE, ST_AGAIN, ST_DONE = range(4)
 
 
 @kernel
-def rail_advance(v, i_out, h, vs, rs, c, rb, vb):
+def rail_advance(v, i_out, h, vs, rs, c, rb, vb, voff):
     """The rail voltage after ``h`` seconds from ``v`` with ``i_out`` (A, drawn from the
     rail; < 0 returns) held: the exact solution of the rail equation (module docstring),
-    across the supply diode's switch at ``vs`` and the chopper's at ``vb`` (``rb`` = 0: no
-    chopper)."""
+    across the supply diode's switch at ``vs`` and the clamp's at ``vb`` (``rb`` = 0: no
+    clamp). The clamp draws ``(v - voff) / rb`` above ``vb``: a brake chopper (``voff`` =
+    0; it holds the rail at ``vb`` while the returned current is below ``vb / rb``) or a
+    TVS (``voff = vb``, its breakdown voltage, ``rb`` its dynamic resistance)."""
     t = h
     for _ in range(8):
         if t <= 0.0:
@@ -100,7 +103,7 @@ def rail_advance(v, i_out, h, vs, rs, c, rb, vb):
             t -= tc
             continue
         if rb > 0.0 and v >= vb:
-            veq = -i_out * rb  # where the resistor alone would hold the rail
+            veq = voff - i_out * rb  # where the clamp alone would hold the rail
             if v > vb or veq > vb:
                 tau = rb * c
                 if veq >= vb:
@@ -151,9 +154,10 @@ def _inputs(j, x, duty, enable, v, locked, cfg, d_eff, en_eff, v_mid, h):
     the rail predicted at the end (the current held at its start)."""
     conducting = enable[j] and locked[j] == 0
     vs, rs, c, rb, vb = cfg[j, S_VS], cfg[j, S_RS], cfg[j, S_C], cfg[j, S_RB], cfg[j, S_VB]
+    voff = cfg[j, S_VOFF]
     i0 = x[j, 0]
     i_pred = bridge_current_a(duty[j], i0, i0, conducting) + cfg[j, S_LOAD]
-    vm = rail_advance(v[j], i_pred, 0.5 * h, vs, rs, c, rb, vb)
+    vm = rail_advance(v[j], i_pred, 0.5 * h, vs, rs, c, rb, vb, voff)
     v_mid[j] = vm
     if conducting:
         d_eff[j] = duty[j] * vm / cfg[j, S_VREF]
@@ -162,7 +166,7 @@ def _inputs(j, x, duty, enable, v, locked, cfg, d_eff, en_eff, v_mid, h):
         vd2 = cfg[j, S_VD2]
         d_eff[j] = (vm + vd2 - cfg[j, S_VREF]) / vd2
         en_eff[j] = False
-    return rail_advance(vm, i_pred, 0.5 * h, vs, rs, c, rb, vb)
+    return rail_advance(vm, i_pred, 0.5 * h, vs, rs, c, rb, vb, voff)
 
 
 @kernel
@@ -390,8 +394,9 @@ def step_period(
                         bridge_current_a(duty[j], xn[j, 0], xs[j, 0], en_eff[j]) + cfg[j, S_LOAD]
                     )
                     vj = rail_advance(
-                        v[j], i_out, cfg[j, S_H], vs, rs, c, cfg[j, S_RB], cfg[j, S_VB]
-                    )
+                        v[j], i_out, cfg[j, S_H], vs, rs, c, cfg[j, S_RB], cfg[j, S_VB],
+                        cfg[j, S_VOFF],
+                    )  # fmt: skip
                     v[j] = vj
                     if en_eff[j]:
                         v_sum[j] += duty[j] * v_mid[j]
@@ -450,10 +455,15 @@ class Bus:
         self.v = per_member(sup.voltage_v, n).copy() if self.on else np.empty(0)
         self.locked = np.zeros(size, dtype=np.int64)
         cfg = np.empty((size, N_SUPPLY))
+        # The rail's clamp: the brake chopper, or a TVS (SupplyParams: not both).
+        tvs = np.asarray(sup.tvs_breakdown_v) > 0
+        clamp_ohm = np.where(tvs, sup.tvs_resistance_ohm, sup.brake_resistor_ohm)
+        clamp_v = np.where(tvs, sup.tvs_breakdown_v, sup.brake_on_v)
+        clamp_off_v = np.where(tvs, sup.tvs_breakdown_v, 0.0)
         if self.on:
             columns = {
                 S_VS: sup.voltage_v, S_RS: sup.source_resistance_ohm, S_C: sup.capacitance_f,
-                S_LOAD: sup.logic_load_a, S_RB: sup.brake_resistor_ohm, S_VB: sup.brake_on_v,
+                S_LOAD: sup.logic_load_a, S_RB: clamp_ohm, S_VB: clamp_v, S_VOFF: clamp_off_v,
                 S_OV_OFF: br.ov_lockout_v, S_OV_ON: br.ov_release_v, S_UV_OFF: br.uv_lockout_v,
                 S_UV_ON: br.uv_release_v, S_VREF: sup.voltage_v,
                 S_VD2: sup.voltage_v + 2.0 * br.diode_drop_v, S_H: h_s / self.substeps,

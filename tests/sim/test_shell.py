@@ -246,3 +246,19 @@ def test_a_scurve_without_jerk_is_refused_before_sending(board):
     MonitorShell(client, say=said.append).execute("move 10 100 100 0 scurve")
     assert "needs J_MAX_DPS3 > 0" in said[-1]
     assert link.frames_out == 0
+
+
+def test_the_toolbar_shows_the_bus_voltage_of_the_last_heartbeat(board):
+    # The board measures its bus and sends it in BoardHeartbeat (every 0.2 s): the status
+    # line shows it beside the current (the firmware's reading, 24.007 V on the paper bench).
+    _, _, client = board
+    client.hello()
+    client.set_telemetry(10)
+    client.collect(0.5)
+    assert client.last_heartbeat is not None
+    assert client.last_heartbeat.bus_voltage_v == pytest.approx(24.0, abs=0.01)
+    shell = MonitorShell(client, latest=lambda: client.telemetry[-1], say=lambda s: None)
+    assert " A 24.0V" in shell.toolbar()
+    msg = client.telemetry[-1]
+    assert "V" not in status_text(msg).split(" A")[-1]  # no heartbeat yet: no bus shown
+    assert status_text(msg, bus_voltage_v=27.93).endswith("A 27.9V")
