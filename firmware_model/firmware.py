@@ -46,7 +46,7 @@ from firmware_model.laws.layout import (
 )
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
-from firmware_model.thermal import protection_constants
+from firmware_model.thermal import N_TP, protection_constants
 from planner.online import OnlinePlanner
 from planner.profile import build_profile
 from serial_protocol import frame
@@ -287,16 +287,21 @@ class Firmware:
         # The same arrays as the compiled tick's ``sf`` (firmware_model.tick.SF_*): they are
         # only ever changed in place.
         self.sensor_mismatch_peak_deg = np.zeros(n)
-        # The thermal protection (firmware_model.thermal): its estimate of the winding and
-        # housing temperatures from power-up at the assumed ambient, and its constants.
-        self._thermal_est = np.full((n, 2), float(params.safety.thermal_ambient_c))
-        self._thermal_tp = protection_constants(params.safety, self.dt_s)
+        # The thermal protection (firmware_model.thermal): its constants and its estimate of
+        # the winding and housing temperatures (from power-up at the assumed ambient) live in
+        # fs from ftick.FS_THERMAL (the constants, then (T_w, T_h) per member).
+        self._fs = np.zeros(ftick.FS_THERMAL + N_TP + 2 * n)
+        self._fs[ftick.FS_THERMAL : ftick.FS_THERMAL + N_TP] = protection_constants(
+            params.safety, self.dt_s
+        )
+        self._thermal_est = self._fs[ftick.FS_THERMAL + N_TP :].reshape(n, 2)
+        self._thermal_est[:] = float(params.safety.thermal_ambient_c)
         # The bus voltage screen: current-loop readings in a row beyond a threshold.
         self._bus_ticks = np.zeros(n, dtype=np.int64)
         self._sf = (
             self._mismatch_deg, self._r_ohm, self._emf_v_per_dps, self._brake_ticks,
             self._diag_ticks, self._diag_errors, self.sensor_mismatch_peak_deg,
-            self._thermal_est, self._thermal_tp, self._bus_ticks,
+            self._bus_ticks,
         )  # fmt: skip
         # Rare events count here; the per-tick TX counters are plain ints (see counters).
         self._counts: dict[str, int] = {
@@ -323,7 +328,6 @@ class Firmware:
         self._set_decimation(tel.decimation)
         # The shared state in the arrays of the compiled tick (firmware_model/tick.py):
         # the constants once here, the rest by _pack / _unpack around each compiled call.
-        self._fs = np.zeros(ftick.N_FS)
         self._fi = np.zeros(ftick.N_FI, dtype=np.int64)
         s = params.safety
         fs, fi = self._fs, self._fi

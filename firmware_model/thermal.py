@@ -24,7 +24,8 @@ import numpy as np
 from firmware_model.kernel_cache import kernel
 
 __all__ = [
-    "N_NET", "N_TP", "network_step", "network_zoh", "protection_constants", "steady_rise_k",
+    "N_NET", "N_TP", "network_advance", "network_step", "network_zoh", "protection_constants",
+    "steady_rise_k",
     "thermal_protection",
 ]  # fmt: skip
 
@@ -71,13 +72,23 @@ def steady_rise_k(p_w: float, p_h: float, r_wh_k_w: float, r_ha_k_w: float) -> t
     return rise_h + p_w * r_wh_k_w, rise_h
 
 
+@kernel(error_model="numpy", inline="always")
+def network_advance(tw, th, p_w, p_h, t_a, net, at):
+    """``(T_w, T_h)`` (degC) one step on from ``(tw, th)`` with the powers ``p_w``, ``p_h``
+    (W) and the ambient ``t_a`` held; ``net[at:at + N_NET]``: ``network_zoh``'s numbers."""
+    return (
+        net[at] * tw + net[at + 1] * th + net[at + 4] * p_w + net[at + 5] * p_h
+        + net[at + 6] * t_a,
+        net[at + 2] * tw + net[at + 3] * th + net[at + 7] * p_w + net[at + 8] * p_h
+        + net[at + 9] * t_a,
+    )  # fmt: skip
+
+
 @kernel(error_model="numpy")
 def network_step(temps, j, p_w, p_h, t_a, net):
     """Advance member ``j``'s ``temps[j] = (T_w, T_h)`` (degC) by one step with the powers
     ``p_w``, ``p_h`` (W) and the ambient ``t_a`` held; ``net``: ``network_zoh``'s (10,)."""
-    tw, th = temps[j, 0], temps[j, 1]
-    temps[j, 0] = net[0] * tw + net[1] * th + net[4] * p_w + net[5] * p_h + net[6] * t_a
-    temps[j, 1] = net[2] * tw + net[3] * th + net[7] * p_w + net[8] * p_h + net[9] * t_a
+    temps[j, 0], temps[j, 1] = network_advance(temps[j, 0], temps[j, 1], p_w, p_h, t_a, net, 0)
 
 
 # The thermal protection's constants (``tp``, shared by the members): the network's step
@@ -107,9 +118,11 @@ def protection_constants(safety: object, dt_s: float) -> np.ndarray:
 
 
 @kernel(error_model="numpy")
-def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, est, tp, derate):
-    """The firmware's thermal protection, one servo tick for every member: its estimate of
-    the winding and housing temperatures ``est`` (``(N, 2)``, degC) advances through the
+def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate):
+    """The firmware's thermal protection, one servo tick for every member. ``fs[at:]``
+    holds its constants (``tp``: ``N_TP`` numbers, the ``TP_*`` offsets from ``at``), then
+    each member's estimate of the winding and housing temperatures (degC, two numbers per
+    member), which advances through the
     network with ``i_meas^2 R(T_est)`` into the winding (the current it measured, or its
     model's where the sense is blind) and the no-load current times the back-EMF (``emf
     * |v|``, the friction loss a datasheet's no-load current stands for) into the housing;
@@ -117,15 +130,18 @@ def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, est, tp
     away: 0 up to ``TP_DERATE_C``, rising linearly to ``1 - TP_MIN_RATIO`` at ``TP_TRIP_C``.
     Returns True if an enabled member's estimate reached ``TP_TRIP_C`` (the ``THERMAL``
     trip). It knows nothing of the plant's temperatures."""
-    lo, hi = tp[TP_DERATE_C], tp[TP_TRIP_C]
-    depth = 1.0 - tp[TP_MIN_RATIO]
+    lo, hi = fs[at + TP_DERATE_C], fs[at + TP_TRIP_C]
+    depth = 1.0 - fs[at + TP_MIN_RATIO]
     hit = False
-    for j in range(est.shape[0]):
+    for j in range(derate.shape[0]):
+        w = at + N_TP + 2 * j
         i = i_meas_a[j]
-        r = r_ohm[j] * (1.0 + tp[TP_ALPHA] * (est[j, 0] - tp[TP_REF_C]))
-        p_h = tp[TP_NO_LOAD_A] * abs(vel_dps[j] * emf_v_per_dps[j])
-        network_step(est, j, i * i * r, p_h, tp[TP_AMBIENT_C], tp)
-        t_w = est[j, 0]
+        r = r_ohm[j] * (1.0 + fs[at + TP_ALPHA] * (fs[w] - fs[at + TP_REF_C]))
+        p_h = fs[at + TP_NO_LOAD_A] * abs(vel_dps[j] * emf_v_per_dps[j])
+        fs[w], fs[w + 1] = network_advance(
+            fs[w], fs[w + 1], i * i * r, p_h, fs[at + TP_AMBIENT_C], fs, at
+        )
+        t_w = fs[w]
         if t_w <= lo:
             derate[j] = 0.0
         elif t_w >= hi:
