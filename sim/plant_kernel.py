@@ -330,8 +330,7 @@ _key_inline = kernel(error_model="numpy", inline="always")(key.py_func)
 
 @kernel(error_model="numpy")
 def step(
-    i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, stack_level,
-    stack_key, level0,
+    i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, level0,
 ):  # fmt: skip
     """One plant step of ``h_s / 2**level0`` with ``(d, en)`` held, from mode ``start_key``
     (-1: work it out), as ``Plant.update`` describes: halve a step whose end mode differs from
@@ -348,18 +347,18 @@ def step(
     icl = kc[_ICL]
     if start_key < 0:
         start_key = key(i, w, tw, wp, d, en, kc)
-    # Pending sub-steps (level, start key or -1 for the mode of the state reached), last
-    # in first out: a halved step pushes its second half, then its first. ``stack_level``,
-    # ``stack_key``: (2 * levels + 2,) int64 scratch, the caller's (no allocation per step).
-    stack_level[0] = level0
-    stack_key[0] = start_key
-    top = 1
+    # The sub-steps, last in first out: a halved step does its first half next (in its
+    # start mode) and leaves its second half pending (in the mode the first half reaches:
+    # key -1). A second half pends one level deeper than the step that halved, which is at
+    # least as deep as every pending one, so the pending second halves have distinct levels
+    # and the deepest is the last pushed: a bit mask of levels (<= levels <= 41) is the
+    # whole stack, and the step needs no scratch array (the kernel allocates nothing).
+    pending = 0
+    level = level0
+    k = start_key
     n_events = 0
     key_end = start_key
-    while top:
-        top -= 1
-        level = stack_level[top]
-        k = stack_key[top]
+    while True:
         if k < 0:
             k = key(i, w, tw, wp, d, en, kc)
         row = slots[k]
@@ -398,18 +397,21 @@ def step(
             accept = True
         if accept:
             i, p, w, tw, wp = ni, np_, nw, ntw, nwp
+            if pending == 0:
+                break
+            level = levels  # the deepest pending second half next
+            while not (pending >> level) & 1:
+                level -= 1
+            pending ^= 1 << level
+            k = -1
             continue
         budget -= 1
-        stack_level[top] = level + 1
-        stack_key[top] = -1
-        stack_level[top + 1] = level + 1
-        stack_key[top + 1] = k
-        top += 2
+        level += 1
+        pending |= 1 << level
     return i, p, w, tw, wp, key_end, n_events, -1
 
 
-# Reference counting on: the rare sub-step path allocates step's scratch (module docstring).
-@kernel(error_model="numpy", _nrt=True)
+@kernel(error_model="numpy")
 def step_members(
     x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
     budget, out_x, out_keys, level0,
@@ -462,13 +464,7 @@ def step_members(
                     out_x[j, 4] = nwp
                     out_keys[j] = k1 % _MECH
                     continue
-        # step's scratch, allocated here: rare (most steps took the common path above), and
-        # an allocation per call would cost a one-member batch more than its step.
-        size = 2 * levels + 2
-        r = step(
-            i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc,
-            np.empty(size, dtype=np.int64), np.empty(size, dtype=np.int64), level0,
-        )  # fmt: skip
+        r = step(i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, level0)
         if r[7] >= 0:
             return j, events, g, r[7]
         out_x[j, 0] = r[0]

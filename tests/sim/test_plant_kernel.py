@@ -1,10 +1,10 @@
 """The compiled plant step (sim.plant_kernel) against its recursive definition.
 
-``plant_kernel.step`` walks the dyadic sub-steps with an explicit stack; the recursion below
-is how the step was written in Python before it was compiled (the same rules, written as
-the docstring of ``Plant.update`` states them). Both must give the
-same floats, bit for bit, including the halving budget, the located switches and their
-projections (diode blocking, I_CL).
+``plant_kernel.step`` walks the dyadic sub-steps with an explicit stack (a bit mask of the
+pending levels); the recursion below is how the step was written in Python before it was
+compiled (the same rules, written as the docstring of ``Plant.update`` states them). Both
+must give the same floats, bit for bit, including the halving budget, the located switches
+and their projections (diode blocking, I_CL).
 """
 
 from __future__ import annotations
