@@ -15,6 +15,7 @@ signed current as ``sign(duty) * sensed``.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -85,26 +86,41 @@ def switching(x, supply_v, shifts, d_out, sense_sign, volt):
 
 
 # read_adc's ``pwm[2]`` columns: the IS offset (A of load current), the sample point, the
-# ripple factor 1 / (L f_pwm) (A per V), the settling time over the PWM period.
-PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE = range(4)
+# ripple factor 1 / (L f_pwm) (A per V), the settling time and the pin's RC time constant
+# over the PWM period.
+PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE, PW_TAU = range(5)
 
 
 def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n: int) -> Any:
-    """``read_adc``'s per-member table ``(n, 4)`` of the PWM-level sense, or ``(0, 4)``
-    when the sense is the averaged one (sample point 0.5, no offset, no settling)."""
+    """``read_adc``'s per-member table ``(n, 5)`` of the PWM-level sense, or ``(0, 5)``
+    when the sense is the averaged one (sample point 0.5, no offset, no settling, no RC)."""
     neutral = (
         np.all(np.asarray(sense.sample_point) == 0.5)
         and np.all(np.asarray(sense.is_offset_ua) == 0)
         and np.all(np.asarray(sense.is_settling_us) == 0)
+        and np.all(np.asarray(sense.is_filter_us) == 0)
     )
     if neutral:
-        return np.zeros((0, 4))
-    table = np.empty((n, 4))
+        return np.zeros((0, 5))
+    table = np.empty((n, 5))
     table[:, PW_OFFSET] = np.asarray(sense.is_offset_ua) * 1e-6 * np.asarray(sense.k_ilis)
     table[:, PW_SAMPLE] = sense.sample_point
     table[:, PW_RIPPLE] = 1.0 / (np.asarray(l_h) * bridge.pwm_hz)
     table[:, PW_SETTLE] = np.asarray(sense.is_settling_us) * 1e-6 * bridge.pwm_hz
+    table[:, PW_TAU] = np.asarray(sense.is_filter_us) * 1e-6 * bridge.pwm_hz
     return table
+
+
+@kernel
+def rc_factor(t_s, t_on, tau):
+    """The IS pin's RC low-pass in the PWM's periodic steady state: its voltage at ``t_s``
+    after the IS current turns on, per unit of that current, when it is on for ``t_on``
+    of each period and off (0) for the rest (times and the time constant ``tau`` in
+    periods). From ``v0`` at the turn-on, ``v(t) = 1 - (1 - v0) exp(-t / tau)``; the
+    steady state closes the period: ``v0 = (1 - exp(-t_on / tau)) exp(-(1 - t_on) / tau)
+    / (1 - exp(-1 / tau))``."""
+    v0 = -math.expm1(-t_on / tau) * math.exp(-(1.0 - t_on) / tau) / -math.expm1(-1.0 / tau)
+    return 1.0 - (1.0 - v0) * math.exp(-t_s / tau)
 
 
 @kernel
@@ -119,7 +135,8 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     ``sample_point`` of the high side's on-time: the current's PWM ripple, peak to peak
     ``|volt| (1 - |duty|) / (L f_pwm)`` (sign-magnitude, R neglected over a period), shifts
     the reading by ``(sample_point - 1/2)`` of it; a sample within the settling time of
-    the turn-on reads nothing; the offset adds while the high side switches."""
+    the turn-on reads nothing; the offset adds while the high side switches; an RC
+    low-pass on the pin scales what it reads by ``rc_factor``."""
     noisy = draw.shape[0] > 0
     duty, volt, table = pwm
     fine = table.shape[0] > 0
@@ -134,6 +151,10 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
             else:
                 v = v + abs(volt[j]) * (1.0 - d) * table[j, PW_RIPPLE] * (s - 0.5)
                 c = (0.0 if 0.0 >= v else v) + table[j, PW_OFFSET]
+                tau = table[j, PW_TAU]
+                if tau > 0.0:
+                    settle = table[j, PW_SETTLE]
+                    c = c * rc_factor(s * d - settle, d - settle, tau)
         c = c / a_per_lsb[j] + 0.5
         if noisy:
             c = c + noise_lsb[j] * draw[j]

@@ -240,8 +240,11 @@ class CurrentSenseParams:
     side's on-time the ADC samples (0.5, the middle, reads the period's mean current; 0 the
     ripple's valley, 1 its peak); ``is_offset_ua`` the IS pin's current with the high side
     on and no load (BTS7960B datasheet 4.4.9, I_ISH: up to 200 uA); ``is_settling_us`` the
-    pin's settling after the high side turns on (a sample earlier reads nothing). The
-    defaults (0.5, 0, 0) are the averaged sense of the model so far, bit for bit.
+    pin's settling after the high side turns on (a sample earlier reads nothing);
+    ``is_filter_us`` the time constant of an RC low-pass on the pin (``R_IS C``, 0 = none):
+    the pin's voltage follows the IS current, on during the on-time, with it
+    (``sim.bridge.rc_factor``). The defaults (0.5, 0, 0, 0) are the averaged sense of the
+    model so far, bit for bit.
     """
 
     k_ilis: float = 8500.0
@@ -252,10 +255,11 @@ class CurrentSenseParams:
     sample_point: float = 0.5
     is_offset_ua: float = 0.0
     is_settling_us: float = 0.0
+    is_filter_us: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "k_ilis", "r_is_ohm", "adc_vref_v")
-        _non_negative(self, "noise_rms_lsb", "is_offset_ua", "is_settling_us")
+        _non_negative(self, "noise_rms_lsb", "is_offset_ua", "is_settling_us", "is_filter_us")
         _check(
             self,
             "sample_point",

@@ -18,7 +18,7 @@ L_H, F_PWM = 0.6e-3, 20e3
 
 
 def _read(i_a, duty, volt, sample=0.5, offset_a=0.0, settle_s=0.0, sign=None):
-    table = np.array([[offset_a, sample, 1.0 / (L_H * F_PWM), settle_s * F_PWM]])
+    table = np.array([[offset_a, sample, 1.0 / (L_H * F_PWM), settle_s * F_PWM, 0.0]])
     out = np.zeros(1, dtype=np.int64)
     sign = np.sign(duty) if sign is None else sign
     read_adc(
@@ -109,3 +109,35 @@ def test_calibrated_offset_restores_the_sense(arithmetic):
     assert np.all(fixed.fault == 0)
     assert fixed.current_a[w].mean() == pytest.approx(5.0, abs=0.02)
     assert abs(fixed.true_pos_deg.max() - base.true_pos_deg.max()) < 2.0
+
+
+def test_the_is_pin_rc_in_its_periodic_steady_state():
+    # rc_factor's closed form against the RC driven period after period (400 periods from
+    # 0, exact exponentials per piece): on for t_on, off for the rest, sampled t_s after on.
+    import math
+
+    from sim.bridge import rc_factor
+
+    for t_s, t_on, tau in ((0.1, 0.3, 0.2), (0.25, 0.5, 0.2), (0.0, 0.2, 0.05), (0.4, 0.9, 1.0)):
+        v = 0.0
+        for _ in range(400):
+            v = 1.0 - (1.0 - v) * math.exp(-t_on / tau)
+            v *= math.exp(-(1.0 - t_on) / tau)
+        want = 1.0 - (1.0 - v) * math.exp(-t_s / tau)
+        assert rc_factor(t_s, t_on, tau) == pytest.approx(want, rel=1e-12, abs=1e-15)
+    assert rc_factor(0.5, 1.0, 0.3) == pytest.approx(1.0)  # always on: no loss
+
+
+def test_an_rc_on_the_is_pin_makes_short_pulses_read_low():
+    # A sample half-way into a short on-time (braking near the target: duty -0.18, 4.5 us)
+    # reads the pin before it has charged: with a 2 us RC, Fig. 6's braking read -4.69 A
+    # for a true -6.31 A, the loop drove the current past its 5 A limit and the back-EMF
+    # check tripped (SENSOR_MISMATCH at 3.268 s). Without the RC: 5.07 A at most, no fault.
+    exp = experiments.with_duration(experiments.load("fig6"), 3.5)
+    rc = loop.run(exp, seed=0, overrides={"current_sense.is_filter_us": 2.0}).log
+    plain = loop.run(exp, seed=0).log
+    assert np.abs(plain.current_a).max() < 5.2 and np.all(plain.fault == 0)
+    assert np.abs(rc.current_a).max() > 6.0
+    assert rc.fault.max() == 9  # SENSOR_MISMATCH
+    k = int(np.argmax(np.abs(rc.current_a) > 5.5))
+    assert abs(rc.current_meas_a[k]) < 0.8 * abs(rc.current_a[k])
