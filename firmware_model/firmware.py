@@ -353,6 +353,9 @@ class Firmware:
         fi[ftick.FI_BUS_UNDER] = self._bus_under_counts
         fi[ftick.FI_BUS_SAMPLES] = s.bus_voltage_samples if s.bus_voltage_check else 0
         fs[ftick.FS_MM_V_PER_BUS] = v_per_count if s.sensor_mismatch_measured_bus else 0.0
+        fs[ftick.FS_MM_SENSE_SPREAD] = s.sensor_mismatch_sense_spread
+        fs[ftick.FS_MM_OFFSET_A] = s.sensor_mismatch_offset_counts * params.current.a_per_adc
+        fs[ftick.FS_MM_R_SPREAD] = s.sensor_mismatch_r_spread
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
 

@@ -362,6 +362,15 @@ class SafetyParams(_Checked):
             times the speed) explain, over a leaky window of ``sensor_mismatch_window_s``,
             above this: a frozen or implausible encoder, or a runaway
             (``firmware_model.safety.sensor_mismatch_step``).
+        sensor_mismatch_sense_spread, sensor_mismatch_offset_counts, sensor_mismatch_r_spread:
+            what the check does not know, so that a healthy board within its datasheet
+            spreads never trips it (the back-EMF speed becomes an interval): the chip's
+            k_ILIS relative to ``[controller.current] sense_ratio`` within ``1 ±`` the
+            spread (0.65: the BTN7971's 3k-14k around 8.5k, no gain calibration), the IS
+            reading's offset left after ``sense_offset_counts`` within ± this many counts
+            (62: 50 uA through the 1 kOhm sense resistor), the winding's resistance within
+            ``resistance_ohm * (1 ±`` the spread), raised by the thermal protection's
+            estimated rise since power-up when that is on.
         encoder_diag_ticks: the AS5048 reports an error (SPI parity, EF, CORDIC overflow,
             magnetic field out of range, offset compensation not finished) this many ticks
             in a row.
@@ -406,6 +415,9 @@ class SafetyParams(_Checked):
     thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
     thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
     sensor_mismatch_measured_bus: bool = _f(False, _boolean)
+    sensor_mismatch_sense_spread: float = _f(0.65, _rng(0.0, 0.99))
+    sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))
+    sensor_mismatch_r_spread: float = _f(0.3, _rng(0.0, 0.99))
     bus_voltage_check: bool = _f(False, _boolean)
     bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))
     bus_under_voltage_v: float = _f(18.0, _rng(0.0, 100.0))

@@ -182,7 +182,8 @@ def edge_speed_dps(
 def sensor_mismatch_step(
     duty, current_a, vel_dps, live, supply_v, r_ohm, emf_v_per_dps, dt_s, window_s,
     tolerance_dps, tolerance_ratio, step_max_deg, excess_deg, bus_adc, v_per_bus_count,
-    bus_hold_counts,
+    bus_hold_counts, sense_spread, sense_offset_a, r_spread, winding_c, alpha_per_k,
+    ambient_c,
 ):  # fmt: skip
     """One tick of the frozen / implausible sensor (runaway) check, for N members; updates
     ``excess_deg`` in place and returns its largest value over the live members.
@@ -213,9 +214,22 @@ def sensor_mismatch_step(
     (the BTN7971B may have locked its outputs out: the terminal voltage is not the duty's
     and the IS pin reads nothing) holds the member's excess where it is for that tick.
 
+    What the firmware does not know makes the back-EMF speed an interval, not a value
+    (docs/model.md, "Safety"): the true current is the reading less the IS pin's offset,
+    times the chip's k_ILIS over the firmware's ``sense_ratio`` — the offset within
+    ``±sense_offset_a`` (A, as the firmware reads it), the ratio within ``1 ± sense_spread``
+    — and a reading the offset alone explains may be a current against the duty the
+    high-side sense cannot see (the interval is then open on that side); the winding's
+    resistance lies within ``r_ohm * (1 ± r_spread)``, its upper end raised by the rise
+    the firmware's thermal estimate saw since power-up (``1 + alpha_per_k * (T_est -
+    ambient_c)``, ``T_est = winding_c[j]``; ``alpha_per_k = 0``: none). Only an
+    encoder speed outside the interval counts, beyond the tolerance. With the three spreads
+    0 the interval of a measured current is the single value of before.
+
     Args: ``duty, current_a, vel_dps`` float ``(N,)`` (the duty applied in the last period,
     the measured current in A); ``live`` bool ``(N,)``; ``r_ohm, emf_v_per_dps`` float
-    ``(N,)``; ``excess_deg`` float ``(N,)``; ``bus_adc`` int ``(N,)`` (counts).
+    ``(N,)``; ``excess_deg`` float ``(N,)``; ``bus_adc`` int ``(N,)`` (counts);
+    ``winding_c`` float ``(N,)`` (degC, the thermal protection's winding estimate).
     """
     worst = 0.0
     keep = 1.0 - dt_s / window_s
@@ -229,15 +243,40 @@ def sensor_mismatch_step(
                 continue  # perhaps locked out: no terminal equation this tick
             bus_v = bus_adc[j] * v_per_bus_count
         v = vel_dps[j]
-        drive_dps = duty[j] * bus_v / emf_v_per_dps[j]
-        emf_dps = drive_dps - r_ohm[j] * current_a[j] / emf_v_per_dps[j]
-        if current_a[j] * duty[j] > 0.0:
-            diff = abs(emf_dps - v)
+        ke = emf_v_per_dps[j]
+        i = current_a[j]
+        drive_dps = duty[j] * bus_v / ke
+        emf_dps = drive_dps - r_ohm[j] * i / ke
+        # The true current's interval [i_lo, i_hi] (A; open below or above if unbounded).
+        open_lo = open_hi = False
+        if i * duty[j] > 0.0:
+            m = abs(i)
+            top = (m + sense_offset_a) * (1.0 + sense_spread)
+            blind = m <= sense_offset_a  # the offset alone may be all the pin reads
+            bottom = 0.0 if blind else (m - sense_offset_a) * (1.0 - sense_spread)
+            if i > 0.0:
+                i_lo, i_hi, open_lo = bottom, top, blind
+            else:
+                i_lo, i_hi, open_hi = -top, -bottom, blind
         else:
             # A high-side sense cannot see a current against the duty (or with none): the
             # law's value is its model's, the true current is only known to lie between
-            # 0 and about that value, and the back-EMF speed between the two ends.
-            lo, hi = min(drive_dps, emf_dps), max(drive_dps, emf_dps)
+            # 0 and about that value.
+            i_lo, i_hi = min(0.0, i), max(0.0, i)
+        rise = 1.0 + alpha_per_k * max(winding_c[j] - ambient_c, 0.0)
+        r_lo = r_ohm[j] * (1.0 - r_spread)
+        r_hi = r_ohm[j] * (1.0 + r_spread) * rise
+        # R * i over both intervals (R > 0): its ends give the back-EMF speed's.
+        ri_max = r_hi * i_hi if i_hi >= 0.0 else r_lo * i_hi
+        ri_min = r_lo * i_lo if i_lo >= 0.0 else r_hi * i_lo
+        if open_hi:  # the current unbounded above (R * i too): the speed has no lower end
+            diff = v - (drive_dps - ri_min / ke)
+            diff = diff if diff > 0.0 else 0.0
+        elif open_lo:  # ... unbounded below: the speed has no upper end
+            diff = (drive_dps - ri_max / ke) - v
+            diff = diff if diff > 0.0 else 0.0
+        else:
+            lo, hi = drive_dps - ri_max / ke, drive_dps - ri_min / ke
             diff = lo - v if v < lo else (v - hi if v > hi else 0.0)
         tol = tolerance_dps + tolerance_ratio * max(abs(emf_dps), abs(v))
         e = excess_deg[j] * keep + min((diff - tol) * dt_s, step_max_deg)

@@ -33,7 +33,7 @@ from firmware_model.laws.layout import (
     P_VEL,
     P_VREF,
 )  # fmt: skip
-from firmware_model.thermal import TP_ON, thermal_protection
+from firmware_model.thermal import N_TP, TP_ALPHA, TP_AMBIENT_C, TP_ON, thermal_protection
 from serial_protocol import frame
 from serial_protocol.messages import State
 
@@ -48,16 +48,17 @@ __all__ = [
     FS_TOL, FS_OC_THR, FS_STUCK_MIN_VEL, FS_OVER_SPEED, FS_PROF_T0, FS_PROF_DURATION,
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
     FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
-    FS_MM_V_PER_BUS,
-) = range(29)  # fmt: skip
-N_FS = 29
+    FS_MM_V_PER_BUS, FS_MM_SENSE_SPREAD, FS_MM_OFFSET_A, FS_MM_R_SPREAD,
+) = range(32)  # fmt: skip
+N_FS = 32
 # The thermal protection's block at the end of fs (Firmware sizes fs to hold it):
 # fs[FS_THERMAL:FS_THERMAL + thermal.N_TP] its constants, then (T_w, T_h) of each member
 # (its estimate, degC). Not in sf: growing that tuple made every compiled tick ~0.4 us
 # slower (measured: 10,000 Fig. 8 ticks 4.9 -> 8.7 ms in run_ticks), fs costs nothing.
 FS_THERMAL = N_FS
 # FS_MM_V_PER_BUS: volts per count of the bus reading for the back-EMF check, 0 = it takes
-# the configured supply voltage (FS_SUPPLY_V).
+# the configured supply voltage (FS_SUPPLY_V). FS_MM_SENSE_SPREAD, _OFFSET_A, _R_SPREAD: what
+# the check does not know of its current reading's gain and offset and of the winding's R.
 # fi: integers.
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
@@ -143,10 +144,14 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     safety.brake_countdown(brake)
     # The duty applied in the last current period, the current it measured, the encoder's
     # speed: the check needs no law step of this tick.
+    # R's rise with the thermal protection's winding estimate (none when it is off).
+    alpha = fs[FS_THERMAL + TP_ALPHA] if fs[FS_THERMAL + TP_ON] != 0.0 else 0.0
     worst = safety.sensor_mismatch_step(
         P[P_DUTY], P[P_IMEAS], P[P_VEL], enabled, fs[FS_SUPPLY_V], sf[SF_R], sf[SF_EMF],
         fs[FS_DT], fs[FS_MM_WINDOW], fs[FS_MM_TOL], fs[FS_MM_RATIO], fs[FS_MM_DEG] / 3.0,
-        mismatch, C[C_BUS_ADC], fs[FS_MM_V_PER_BUS], K[K_BUS_HOLD],
+        mismatch, C[C_BUS_ADC], fs[FS_MM_V_PER_BUS], K[K_BUS_HOLD], fs[FS_MM_SENSE_SPREAD],
+        fs[FS_MM_OFFSET_A], fs[FS_MM_R_SPREAD], fs[FS_THERMAL + N_TP :: 2], alpha,
+        fs[FS_THERMAL + TP_AMBIENT_C],
     )  # fmt: skip
     sensor = worst > fs[FS_MM_DEG]
     peak = sf[SF_PEAK]
