@@ -97,6 +97,11 @@ N_CX = 14
 N_F = 11
 
 _pace = kernel(uart.pace)
+# servo_stage inlined into the tick (numba IR; one source, Firmware.servo_tick calls the plain
+# one): called, it cost ~0.1 us of a ~0.8 us N = 1 tick (its ~10 array arguments and tuple;
+# a longer sf tuple once doubled the cost, docs/benchmarks.md "heat"); +2.5 s of CPU of a cold
+# compile of ~16 s.
+_servo_stage = kernel(inline="always")(servo_stage.py_func)
 
 
 @kernel
@@ -183,7 +188,7 @@ def run_ticks(
                 ctx[CX_STAGE] = SERVO
                 return STOP_RX
         if stage == SERVO:
-            hit = servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf)
+            hit = _servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf)
             stage = TICKUP
             if hit:
                 ctx[CX_STAGE] = TICKUP
