@@ -13,9 +13,10 @@ docs/model.md, "Safety"). Not a test: the suite checks the settings' outcome on 
   other fault) against the threshold.
 * Detection: a noisy (+-1 count) freeze of the encoder while cruising at each speed, with
   the configured settings (check and brake on): the detection tick, the axis travel from
-  the freeze to the trip and to rest.
+  the freeze to the trip and to rest; ``--set safety.KEY=VALUE`` changes the firmware's
+  settings for it (e.g. the check's spreads: ``--set safety.sensor_mismatch_sense_spread=0``).
 
-    python3 benchmarks/sensor_check.py [--seeds 5] [--no-spread]
+    python3 benchmarks/sensor_check.py [--seeds 5] [--no-spread] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -97,9 +98,11 @@ def false_alarms(seeds: int, spread: bool) -> float:
     return worst
 
 
-def freeze(v_dps: float, *, brake: bool = True, seed: int = 3) -> dict[str, float]:
+def freeze(
+    v_dps: float, *, brake: bool = True, seed: int = 3, overrides: dict | None = None
+) -> dict[str, float]:
     """A +-1 count noisy freeze while cruising at ``v_dps`` (3 s after the start)."""
-    over = {} if brake else {"safety.brake_s": 0.0}
+    over = {**(overrides or {}), **({} if brake else {"safety.brake_s": 0.0})}
     sim = loop.Simulation(paper_bench(**over), seed=seed)
     sim.pc_write(frame.encode(Hello(0, session=1), 0))
     sim.pc_write(frame.encode(Move(1, 30000.0, v_dps, 2000.0, 0.0, Profile.TRAPEZOID, 1), 1))
@@ -121,11 +124,12 @@ def freeze(v_dps: float, *, brake: bool = True, seed: int = 3) -> dict[str, floa
     }
 
 
-def detection() -> None:
-    print("Detection of a noisy freeze (+-1 count) while cruising, settings as configured:")
+def detection(overrides: dict | None = None) -> None:
+    print(f"Detection of a noisy freeze (+-1 count) while cruising, settings as configured"
+          f"{' with ' + str(overrides) if overrides else ''}:")  # fmt: skip
     print("  speed deg/s | fault | ticks to trip | travel to trip deg | speed at trip | to rest")
     for v in (30.0, 60.0, 100.0, 130.0, 200.0, 400.0, 700.0, 990.0):
-        r = freeze(v)
+        r = freeze(v, overrides=overrides)
         print(f"  {v:11.0f} | {r['fault']} | {r['ticks']:13d} | {r['to_trip_deg']:18.2f} | "
               f"{r['speed_at_trip']:13.1f} | {r['to_rest_deg']:.2f} deg"
               f"{'' if r['rest'] else ' (still moving)'}")  # fmt: skip
@@ -136,9 +140,25 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--no-spread", action="store_true")
     ap.add_argument("--no-false-alarms", action="store_true")
+    ap.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a firmware setting for the detection runs (e.g. safety.brake_s=0)",
+    )
     args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            ap.error(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            overrides[key] = int(value) if value.lstrip("-").isdigit() else float(value)
+        except ValueError:
+            ap.error(f"--set {item!r}: {value!r} is not a number")
     wall0 = time.perf_counter()
-    detection()
+    detection(overrides)
     if not args.no_false_alarms:
         false_alarms(args.seeds, not args.no_spread)
     print(f"{time.perf_counter() - wall0:.0f} s wall, load {os.getloadavg()[0]:.1f}")
