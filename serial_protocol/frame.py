@@ -193,7 +193,9 @@ class WireField:
     ``name`` is the dataclass attribute; ``wire`` one of u8 u16 u32 i16 i32 f32; ``scale``
     the fixed-point factor (wire = round(value * scale)); ``enum`` the ``IntEnum`` of a
     code field (``bool`` for a 0/1 byte); ``wrap`` that the value is taken modulo 2^32;
-    ``unit`` and ``doc`` are what the spec prints.
+    ``unit`` and ``doc`` are what the spec prints. ``appended``: the field was appended
+    after version 2.0 by the extension rule (docs/protocol.md section 6); a payload from an
+    older peer may end before it, and the field then reads as wire value 0.
     """
 
     name: str
@@ -203,6 +205,7 @@ class WireField:
     scale: float | None = None
     enum: type | None = None
     wrap: bool = False
+    appended: bool = False
 
     @property
     def fmt(self) -> str:
@@ -300,10 +303,22 @@ _ROWS: tuple[_Row, ...] = (
             _f("watchdog_ms", "u16", "ms", "command watchdog; 0 = off"),
             _f("rx_silence_ms", "u16", "ms", "silence that discards a partial frame"),
             _f("baud", "u32", "baud", "UART rate the board's telemetry budget assumes"),
-            _f("queue_blocks", "u8", "blocks", "program queue size (`QueueSegment`)"),
-            _f("stream_points", "u8", "points", "point buffer size (`StreamPoints`)"),
-            _f("stream_period_min_ms", "u16", "ms", "shortest stream period accepted"),
-            _f("stream_period_max_ms", "u16", "ms", "longest stream period accepted"),
+            _f(
+                "queue_blocks", "u8", "blocks", "program queue size (`QueueSegment`)", appended=True
+            ),
+            _f(
+                "stream_points", "u8", "points", "point buffer size (`StreamPoints`)", appended=True
+            ),
+            _f(
+                "stream_period_min_ms",
+                "u16",
+                "ms",
+                "shortest stream period accepted",
+                appended=True,
+            ),
+            _f(
+                "stream_period_max_ms", "u16", "ms", "longest stream period accepted", appended=True
+            ),
         ),
     ),
     _Row(
@@ -355,12 +370,33 @@ _ROWS: tuple[_Row, ...] = (
             _f("travel_max_deg", "f32", "deg", "highest `Move` target (read-only)"),
             _f("over_speed_dps", "f32", "deg/s", "over-speed trip; ceiling of v_max (read-only)"),
             _f("over_current_max_a", "f32", "A", "ceiling of over_current_trip_a (read-only)"),
-            _f("bus_over_voltage_v", "f32", "V", "bus over-voltage trip; 0 = off (read-only)"),
-            _f("bus_under_voltage_v", "f32", "V", "bus under-voltage trip; 0 = off (read-only)"),
-            _f("thermal_trip_c", "f32", "degC", "thermal protection's trip; 0 = off (read-only)"),
             _f(
-                "winding_estimate_c", "f32", "degC",
+                "bus_over_voltage_v",
+                "f32",
+                "V",
+                "bus over-voltage trip; 0 = off (read-only)",
+                appended=True,
+            ),
+            _f(
+                "bus_under_voltage_v",
+                "f32",
+                "V",
+                "bus under-voltage trip; 0 = off (read-only)",
+                appended=True,
+            ),
+            _f(
+                "thermal_trip_c",
+                "f32",
+                "degC",
+                "thermal protection's trip; 0 = off (read-only)",
+                appended=True,
+            ),
+            _f(
+                "winding_estimate_c",
+                "f32",
+                "degC",
                 "thermal protection's winding estimate; 0 = off (read-only)",
+                appended=True,
             ),  # fmt: skip
         ),
     ),
@@ -394,12 +430,25 @@ _ROWS: tuple[_Row, ...] = (
             _f("rx_silence_discards", "u32", "", "partial frames discarded after silence"),
             _f("rx_nacked", "u32", "frames", "commands answered with a Nack"),
             _f("tx_telemetry_dropped", "u32", "frames", "telemetry frames not sent"),
-            _f("queue_free", "u8", "blocks", "program blocks that may be sent now"),
-            _f("stream_free", "u8", "points", "stream points that may be sent now"),
-            _f("stream_state", "u8", "", "`StreamState` code", enum=StreamState),
-            _f("stream_underruns", "u32", "", "stream underruns since boot", wrap=True),
-            _f("bus_voltage_v", "u16", "V", "measured bus voltage, 1 LSB = 1 mV; 0 = unknown",
-               scale=BUS_SCALE),  # fmt: skip
+            _f("queue_free", "u8", "blocks", "program blocks that may be sent now", appended=True),
+            _f("stream_free", "u8", "points", "stream points that may be sent now", appended=True),
+            _f("stream_state", "u8", "", "`StreamState` code", enum=StreamState, appended=True),
+            _f(
+                "stream_underruns",
+                "u32",
+                "",
+                "stream underruns since boot",
+                wrap=True,
+                appended=True,
+            ),
+            _f(
+                "bus_voltage_v",
+                "u16",
+                "V",
+                "measured bus voltage, 1 LSB = 1 mV; 0 = unknown",
+                scale=BUS_SCALE,
+                appended=True,
+            ),  # fmt: skip
         ),
     ),
     _Row(
@@ -463,7 +512,7 @@ _ROWS: tuple[_Row, ...] = (
             _f("count", "u8", "points", "points used, 1..5"),
             *(
                 _f(f"pos{k}_deg", "i32", "deg", f"position of point first + {k}, 1 LSB = 1e-4 deg",
-                   **_POS)
+                   **_POS)  # fmt: skip
                 for k in range(5)
             ),
             *(
@@ -587,7 +636,7 @@ class _Codec:
     """Precompiled framing of one message type."""
 
     __slots__ = ("cls", "msg_type", "payload", "frame", "hdr_by_seq", "to_wire", "from_wire",
-                 "fmt", "fields")  # fmt: skip
+                 "fmt", "fields", "min_size", "appended_ends")  # fmt: skip
 
     def __init__(self, row: _Row) -> None:
         self.cls = row.cls
@@ -601,6 +650,17 @@ class _Codec:
         self.hdr_by_seq = bytes(_T8[state ^ seq] for seq in range(256))
         self.to_wire = _to_wire_of(row.fields)
         self.from_wire = _from_wire_of(row.cls, row.fields)
+        # The extension rule: the fields of version 2.0 come first; a payload may end after
+        # any appended field (an older peer's), never inside one.
+        base = [f for f in row.fields if not f.appended]
+        if row.fields[: len(base)] != tuple(base):
+            raise AssertionError(f"{row.cls.__name__}: an appended field before a base one")
+        ends, at = [], struct.calcsize("<" + "".join(f.fmt for f in base))
+        for f in row.fields[len(base) :]:
+            at += struct.calcsize("<" + f.fmt)
+            ends.append(at)
+        self.min_size = ends[0] - struct.calcsize("<" + row.fields[len(base)].fmt) if ends else at
+        self.appended_ends = frozenset(ends)
 
 
 _BY_CLASS: dict[type, _Codec] = {row.cls: _Codec(row) for row in _ROWS}
@@ -838,14 +898,22 @@ def encode_payload(msg: Message) -> tuple[int, bytes]:
 def _decode_at(msg_type: int, seq: int, buf: Any, start: int, length: int) -> Message | Malformed:
     """The message in ``buf[start:start + length]`` of type ``msg_type``, or ``Malformed``.
 
-    The extension rule: a payload longer than the type's is decoded from its first bytes
-    and the rest is ignored (fields a newer peer appended); a shorter one is BAD_LENGTH.
+    The extension rule (docs/protocol.md section 6): a payload longer than the type's is
+    decoded from its first bytes and the rest is ignored (fields a newer peer appended); one
+    that ends after the version 2.0 fields or after any appended field (an older peer's)
+    decodes with the fields it lacks read as wire value 0; any other length is BAD_LENGTH.
     """
     codec = _BY_TYPE.get(msg_type)
     field = NO_FIELD
-    if codec is not None and codec.payload.size <= length:
+    if codec is not None and (
+        codec.payload.size <= length or length == codec.min_size or length in codec.appended_ends
+    ):
         try:
-            return codec.from_wire(codec.payload.unpack_from(buf, start))
+            if length >= codec.payload.size:
+                return codec.from_wire(codec.payload.unpack_from(buf, start))
+            # an older peer's payload: the appended fields it does not have read as 0
+            padded = bytes(buf[start : start + length]) + bytes(codec.payload.size - length)
+            return codec.from_wire(codec.payload.unpack(padded))
         except _BadCode as exc:
             code, field = NackCode.OUT_OF_RANGE, exc.index
     else:

@@ -246,6 +246,12 @@ def streams() -> list[dict[str, Any]]:
     ack = [{"type": "Ack", "fields": _fields(m)} for m in
            (Ack(1, MsgType.MOVE), Ack(2, MsgType.STOP), Ack(3, MsgType.SET_ENABLE))]  # fmt: skip
     zero = dict.fromkeys(vars(frame.Decoder().stats()), 0)
+    # the extension rule (section 6): an older board's BoardHeartbeat, without the appended
+    # bus_voltage_v (2 bytes), and one cut inside that field
+    heartbeat = next(msg for name, msg, _ in FRAMES if name == "board_heartbeat")
+    hb_type, hb_payload = frame.encode_payload(heartbeat)
+    old_heartbeat = frame.frame_raw(hb_type, hb_payload[:-2], 16)
+    inside = frame.frame_raw(hb_type, hb_payload[:-1], 16)
 
     def counters(**kw: int) -> dict[str, int]:
         return {**zero, **kw}
@@ -278,6 +284,18 @@ def streams() -> list[dict[str, Any]]:
          "messages": [{"type": "Malformed", "fields": {"msg_type": int(MsgType.GET_STATUS),
                                                        "seq": 3, "cmd_id": 0,
                                                        "code": "BAD_LENGTH", "field": 255}}],
+         "counters": counters(frames=1, malformed=1), "pending_bytes": 0},
+        {"name": "older_board_heartbeat_without_bus_voltage", "hex": old_heartbeat.hex(),
+         "flush": False,
+         "messages": [{"type": "BoardHeartbeat",
+                       "fields": {**_fields(heartbeat), "bus_voltage_v": 0.0}}],
+         "counters": counters(frames=1), "pending_bytes": 0},
+        {"name": "payload_ending_inside_an_appended_field_is_malformed",
+         "hex": inside.hex(), "flush": False,
+         "messages": [{"type": "Malformed",
+                       "fields": {"msg_type": int(MsgType.BOARD_HEARTBEAT), "seq": 16,
+                                  "cmd_id": heartbeat.tick & 0xFFFF, "code": "BAD_LENGTH",
+                                  "field": 255}}],
          "counters": counters(frames=1, malformed=1), "pending_bytes": 0},
         {"name": "longer_payload_is_an_extension",
          "hex": frame.frame_raw(MsgType.ACK, bytes(a[6:9]) + b"\x01\x02\x03", 0).hex(),

@@ -108,7 +108,19 @@ def _independent_decode(data: bytes) -> tuple[int, int, dict[str, Any]]:
     assert len(data) == 6 + length + 4
     assert zlib.crc32(data[2 : 6 + length]) == int.from_bytes(data[6 + length :], "little")
     layout = _doc_layout(type_byte)
-    values = struct.unpack("<" + "".join(WIRE[w] for _, w, _ in layout), data[6 : 6 + length])
+    fmt = "<" + "".join(WIRE[w] for _, w, _ in layout)
+    payload = data[6 : 6 + length]
+    if length < struct.calcsize(fmt):
+        # section 6: an older peer's payload ends after the "at least" length or after an
+        # appended field; the fields it lacks read as 0
+        heading = rf"^#### 0x{type_byte:02X} `\w+` \(payload \d+, at least (\d+),"
+        head = re.search(heading, DOC, re.M)
+        assert head and length >= int(head.group(1)), "BAD_LENGTH"
+        ends = [struct.calcsize("<" + "".join(WIRE[w] for _, w, _ in layout[: k + 1]))
+                for k in range(len(layout))]  # fmt: skip
+        assert length in ends, "BAD_LENGTH: ends inside a field"
+        payload += bytes(struct.calcsize(fmt) - length)
+    values = struct.unpack(fmt, payload[: struct.calcsize(fmt)])
     out = {}
     for (name, wire, unit), raw in zip(layout, values, strict=True):
         scale = _doc_scale(wire, unit)
@@ -154,6 +166,19 @@ def test_frame(case):
         if field.enum is bool:
             want = int(want)
         assert _same(raw[name], want if not hasattr(want, "value") else int(want)), name
+
+
+def test_the_spec_alone_reads_an_older_board_s_heartbeat():
+    """The extension rule as docs/protocol.md states it (the "at least" length, fields it
+    lacks read as 0) decodes the vectors' older BoardHeartbeat as the codec does."""
+    [case] = [c for c in VECTORS["streams"] if c["name"].startswith("older_board_heartbeat")]
+    data = bytes.fromhex(case["hex"])
+    type_byte, _, raw = _independent_decode(data)
+    assert type_byte == m.MsgType.BOARD_HEARTBEAT
+    [want] = case["messages"]
+    assert raw["bus_voltage_v"] == 0 and raw["tick"] == want["fields"]["tick"]
+    [got] = frame.Decoder().feed(data)
+    assert _matches(got, want)
 
 
 def _counters(decoder: frame.Decoder) -> dict[str, int]:

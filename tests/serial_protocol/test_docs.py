@@ -26,11 +26,22 @@ def _section(name: str) -> str:
 def test_message_table_matches_codec(cls):
     codec = frame._BY_CLASS[cls]
     text = _section(cls.__name__)
-    head = re.match(r"#### 0x([0-9A-F]{2}) `\w+` \(payload (\d+), frame (\d+) bytes\)", text)
+    head = re.match(
+        r"#### 0x([0-9A-F]{2}) `\w+` \(payload (\d+)(?:, at least (\d+))?, frame (\d+) bytes\)",
+        text,
+    )
     assert head
     assert int(head.group(1), 16) == codec.msg_type
     assert int(head.group(2)) == codec.payload.size
-    assert int(head.group(3)) == codec.payload.size + frame.OVERHEAD_BYTES
+    assert int(head.group(4)) == codec.payload.size + frame.OVERHEAD_BYTES
+    # the extension rule (section 6): the length without the appended fields, and each
+    # appended field marked in the table
+    if codec.min_size < codec.payload.size:
+        assert head.group(3) is not None and int(head.group(3)) == codec.min_size
+    else:
+        assert head.group(3) is None
+    marked = re.findall(r"^\| \d+ \| \d+ \| `(\w+)` \| \w+ \| [^|]* \| \*appended\*", text, re.M)
+    assert marked == [f.name for f in frame.wire_fields(cls) if f.appended]
     rows = re.findall(r"^\| (\d+) \| (\d+) \| `(\w+)` \| (\w+) \|", text, re.M)
     names = [f.name for f in frame.wire_fields(cls)]
     assert [r[2] for r in rows] == names

@@ -280,11 +280,73 @@ def test_unframed_payload_malformed():
 @given(data=st.data(), extra=st.binary(min_size=1, max_size=8))
 def test_appended_fields_are_ignored(cls, data, extra):
     # The extension rule: a newer peer appends fields; an older one decodes the fields it
-    # knows and ignores the rest (a shorter payload is BAD_LENGTH).
+    # knows and ignores the rest.
     msg = data.draw(BY_CLASS[cls])
     msg_type, payload = encode_payload(msg)
     [got] = Decoder().feed(frame_raw(msg_type, payload + extra, 0))
     assert _same([got], [msg])
+
+
+# The messages that gained fields after version 2.0 (board -> PC only; no command has one).
+_EXTENDED = [c for c in BY_CLASS if any(f.appended for f in frame.wire_fields(c))]
+
+
+def test_which_fields_were_appended_after_version_2_0():
+    appended = {
+        c.__name__: [f.name for f in frame.wire_fields(c) if f.appended] for c in _EXTENDED
+    }
+    assert appended == {
+        "HelloReply": ["queue_blocks", "stream_points", "stream_period_min_ms",
+                       "stream_period_max_ms"],
+        "Limits": ["bus_over_voltage_v", "bus_under_voltage_v", "thermal_trip_c",
+                   "winding_estimate_c"],
+        "BoardHeartbeat": ["queue_free", "stream_free", "stream_state", "stream_underruns",
+                           "bus_voltage_v"],
+    }  # fmt: skip
+    # the board must decode every command an older PC sends: no command has appended fields
+    assert all(int(c.MSG_TYPE) >= 0x80 for c in _EXTENDED)
+
+
+@pytest.mark.parametrize("cls", _EXTENDED, ids=lambda c: c.__name__)
+@settings(max_examples=20)
+@given(data=st.data())
+def test_an_older_peer_s_payload_reads_the_fields_it_lacks_as_zero(cls, data):
+    """The extension rule, the other way round: a newer PC reading an older board's message
+    (its payload ends after the version 2.0 fields, or after any appended field) gets every
+    field the older board sent and 0 for each it did not; a payload that ends inside a field
+    is BAD_LENGTH. (Until 2 December the codec refused every shorter payload, while the spec
+    promised 'bus_voltage_v 0 from an older board'.)"""
+    msg = data.draw(BY_CLASS[cls])
+    msg_type, payload = encode_payload(msg)
+    fields = frame.wire_fields(cls)
+    at, ends = 0, []
+    for f in fields:
+        at += struct.calcsize("<" + f.fmt)
+        ends.append((at, f))
+    first_appended = next(i for i, f in enumerate(fields) if f.appended)
+    zero = decode_payload(msg_type, bytes(len(payload)))
+    for i in range(first_appended - 1, len(fields)):
+        end = ends[i][0]
+        [got] = Decoder().feed(frame_raw(msg_type, payload[:end], 3))
+        expected = dataclasses.replace(
+            msg, **{f.name: getattr(zero, f.name) for f in fields[i + 1 :]}
+        )
+        assert _same([got], [expected]), (end, got)
+        if i + 1 < len(fields) and struct.calcsize("<" + fields[i + 1].fmt) > 1:
+            [cut] = Decoder().feed(frame_raw(msg_type, payload[: end + 1], 3))
+            assert isinstance(cut, Malformed) and cut.code is NackCode.BAD_LENGTH
+    short = ends[first_appended - 1][0] - 1
+    assert decode_payload(msg_type, payload[:short]).code is NackCode.BAD_LENGTH
+
+
+def test_an_older_board_s_heartbeat_has_no_bus_voltage():
+    """The spec's own example: a BoardHeartbeat without ``bus_voltage_v`` (2 bytes shorter)
+    reads 0 V, 'unknown'."""
+    msg = BoardHeartbeat(**{f.name: 0 for f in frame.wire_fields(BoardHeartbeat)})
+    msg = dataclasses.replace(msg, tick=1234, rx_frames=7, bus_voltage_v=24.0)
+    msg_type, payload = encode_payload(msg)
+    got = decode_payload(msg_type, payload[:-2])
+    assert got == dataclasses.replace(msg, bus_voltage_v=0.0)
 
 
 def test_nan_and_infinity_travel_in_float_fields():
