@@ -609,6 +609,19 @@ def _cell(x: float, digits: int = 3) -> str:
     return "-" if math.isnan(x) else f"{x:.{digits}g}"
 
 
+def _faults_by_name(st: Study, idx: list[int]) -> str:
+    """`` (OVER_CURRENT 4, THERMAL 1)``: which first fault the members of ``idx`` tripped
+    with, most frequent first ("" when none tripped)."""
+    from collections import Counter
+
+    from serial_protocol.messages import Fault
+
+    names = Counter(
+        Fault(int(st.metrics[k]["fault code"])).name for k in idx if st.metrics[k]["fault code"]
+    )
+    return f" ({', '.join(f'{n} {c}' for n, c in names.most_common())})" if names else ""
+
+
 def _fault(metrics: Mapping[str, float]) -> str:
     from serial_protocol.messages import Fault
 
@@ -745,7 +758,7 @@ def _effects_everywhere_table(b: BandResult) -> list[str]:
             idx = st.select(gains=kind, effect=effect, copy=0)
             ok = [k for k in idx if not st.metrics[k]["fault code"]]
             vals = st.values("overshoot (deg)", ok)
-            txt = f"{len(idx) - len(ok)} of {len(idx)}, "
+            txt = f"{len(idx) - len(ok)} of {len(idx)}{_faults_by_name(st, idx)}, "
             txt += (
                 f"{_cell(float(np.median(vals)), 4)} ({_cell(min(vals))}–{_cell(max(vals))})"
                 if vals

@@ -202,3 +202,16 @@ def test_the_full_study_members():
     cheap = band.fig6_band_members()
     assert len(cheap) == 15 * 3 + 2 * 2 + n_eff
     assert {m.motor for m in cheap if m.effect} == {band.Motor()}
+
+
+def test_the_effects_table_names_the_faults_the_motors_tripped_with():
+    """Section 8's effects table says which first fault tripped the motors it counts (the
+    counts alone could not tell an over-current from a sensor or thermal trip)."""
+    from types import SimpleNamespace
+
+    from serial_protocol.messages import Fault
+
+    codes = [0, int(Fault.OVER_CURRENT), int(Fault.THERMAL), int(Fault.OVER_CURRENT)]
+    st = SimpleNamespace(metrics=[{"fault code": float(c)} for c in codes])
+    assert band._faults_by_name(st, [0, 1, 2, 3]) == " (OVER_CURRENT 2, THERMAL 1)"
+    assert band._faults_by_name(st, [0]) == ""
