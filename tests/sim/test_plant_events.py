@@ -10,6 +10,7 @@ import os
 
 import numpy as np
 import pytest
+from recording import recording
 
 from sim import loop
 from sim.drivetrain import stuck_at_rest
@@ -24,24 +25,9 @@ DT_S = 0.002
 def _run_inputs(name: str, duration_s: float, **overrides):
     """A closed-loop run's plant inputs: (duty (K,), enable (K,), plant params, log)."""
     exp = experiments.with_duration(experiments.load(name), duration_s)
-    holder = {}
-
-    class Recording(loop.Simulation):
-        """``loop.run``'s simulation, recording the plant's inputs."""
-
-        def __init__(self, *a, **k):
-            k["record_inputs"] = True
-            super().__init__(*a, **k)
-            holder["sim"] = self
-
-    saved = loop.Simulation
-    loop.Simulation = Recording
-    try:
-        result = loop.run(exp, seed=0, overrides=overrides or None)
-    finally:
-        loop.Simulation = saved
-    duty, enable = holder["sim"].inputs()
-    return duty, enable, holder["sim"].bench.plant, result
+    sim, result = recording(loop.run, exp, seed=0, overrides=overrides or None)
+    duty, enable = sim.inputs()
+    return duty, enable, sim.bench.plant, result
 
 
 def _plant_states(params: PlantParams, duty, enable, h_s: float = DT_S, sub: int = 1):

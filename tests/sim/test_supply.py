@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from recording import recording
 
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Fault
@@ -119,30 +120,26 @@ def test_a_stiff_bus_is_the_stiff_supply():
     np.testing.assert_allclose(big.true_pos_deg, stiff.true_pos_deg, atol=1.5)
 
 
+def _replayed(overrides: dict, t_end_s: float, k0: int):
+    """``(simulation, log, replay)``: Fig. 6 with ``overrides`` up to ``t_end_s``, and
+    ``solve_ivp`` on the continuous model (``sim.oracle.replay``) from the simulation's state
+    at tick ``k0`` with its recorded duties: ``replay[i]`` is the state after tick k0 + i."""
+    exp = experiments.with_duration(experiments.load("fig6"), t_end_s)
+    sim, result = recording(loop.run, exp, seed=0, overrides=overrides)
+    log = result.log
+    duty, enable = sim.inputs()
+    k1 = len(log)
+    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
+    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
+    return sim, log, ref
+
+
 def test_bus_step_matches_solve_ivp_through_hard_braking():
     # Fig. 6's braking from 3.0 s up to the lock-out (3.106 s): the bus rises 24 -> 28 V in
     # 8 ms. Replayed from the simulation's state with its recorded duties through
     # solve_ivp on the continuous model (the rail and the duty's product exact).
-    holder = {}
-
-    class Recording(loop.Simulation):
-        def __init__(self, *a, **k):
-            k["record_inputs"] = True
-            super().__init__(*a, **k)
-            holder["sim"] = self
-
-    saved = loop.Simulation
-    loop.Simulation = Recording
-    try:
-        exp = experiments.with_duration(experiments.load("fig6"), 3.106)
-        log = loop.run(exp, seed=0, overrides=BUS).log
-    finally:
-        loop.Simulation = saved
-    sim = holder["sim"]
-    duty, enable = sim.inputs()
+    _, log, ref = _replayed(BUS, 3.106, 1500)
     k0, k1 = 1500, len(log)
-    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
-    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
     assert log.bus_v[k1 - 1] > 26.0  # the window does reach the hard braking
     assert np.abs(ref[:, 5] - log.bus_v[k0 + 1 : k1]).max() < 3e-3  # V (measured 1.3e-3)
     assert np.abs(ref[:, 0] - log.current_a[k0 + 1 : k1]).max() < 4e-3  # A (1.7e-3)
@@ -276,26 +273,8 @@ def test_rail_profile_is_the_rails_exact_solution_for_a_ramped_current():
 def _replay_errors(quiet_v: float, t_end_s: float, k0: int):
     """``(bus V, current A, motor angle rev, periods taken whole)``: the largest differences
     of Fig. 6 with the bus model from ``solve_ivp`` on its recorded inputs from tick ``k0``."""
-    holder = {}
-
-    class Recording(loop.Simulation):
-        def __init__(self, *a, **k):
-            k["record_inputs"] = True
-            super().__init__(*a, **k)
-            holder["sim"] = self
-
-    saved = loop.Simulation
-    loop.Simulation = Recording
-    try:
-        exp = experiments.with_duration(experiments.load("fig6"), t_end_s)
-        log = loop.run(exp, seed=0, overrides={**BUS, "supply.bus_quiet_v": quiet_v}).log
-    finally:
-        loop.Simulation = saved
-    sim = holder["sim"]
-    duty, enable = sim.inputs()
+    sim, log, ref = _replayed({**BUS, "supply.bus_quiet_v": quiet_v}, t_end_s, k0)
     k1 = len(log)
-    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
-    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
     return (
         np.abs(ref[:, 5] - log.bus_v[k0 + 1 : k1]).max(),
         np.abs(ref[:, 0] - log.current_a[k0 + 1 : k1]).max(),
@@ -371,26 +350,8 @@ def test_fig6_with_a_tvs_never_locks_out_and_matches_solve_ivp():
     assert 27.5 < log.bus_v.max() < 28.0
     assert np.all((log.voltage_v != 0.0) | (log.duty == 0.0))  # never locked out
     assert log.true_pos_deg.max() - 3000.0 < 100.0
-    holder = {}
-
-    class Recording(loop.Simulation):
-        def __init__(self, *a, **k):
-            k["record_inputs"] = True
-            super().__init__(*a, **k)
-            holder["sim"] = self
-
-    saved = loop.Simulation
-    loop.Simulation = Recording
-    try:
-        exp = experiments.with_duration(experiments.load("fig6"), 3.2)
-        log = loop.run(exp, seed=0, overrides=tvs).log
-    finally:
-        loop.Simulation = saved
-    sim = holder["sim"]
-    duty, enable = sim.inputs()
+    _, log, ref = _replayed(tvs, 3.2, 1500)
     k0, k1 = 1500, len(log)
-    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
-    ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
     assert log.bus_v[k1 - 1] > 27.0  # the window reaches the clamp
     assert np.abs(ref[:, 5] - log.bus_v[k0 + 1 : k1]).max() < 3e-3  # V (measured 1.3e-3)
     assert np.abs(ref[:, 0] - log.current_a[k0 + 1 : k1]).max() < 4e-3  # A (1.7e-3)

@@ -8,6 +8,7 @@ import math
 
 import numpy as np
 import pytest
+from recording import recording
 
 from firmware_model.thermal import network_step, network_zoh, steady_rise_k
 from sim import cli, loop
@@ -28,22 +29,9 @@ def _fig6(duration_s: float = 1.5, seed: int = 0, batch: int | None = None, **ov
 def _run_inputs(duration_s: float, **overrides):
     """Fig. 6 through the tick-by-tick loop, recording the plant's inputs: (duty, enable,
     plant params, result)."""
-    holder = {}
-
-    class Recording(loop.Simulation):
-        def __init__(self, *a, **k):
-            k["record_inputs"] = True
-            super().__init__(*a, **k)
-            holder["sim"] = self
-
-    saved = loop.Simulation
-    loop.Simulation = Recording
-    try:
-        result = _fig6(duration_s, **overrides)
-    finally:
-        loop.Simulation = saved
-    duty, enable = holder["sim"].inputs()
-    return duty, enable, holder["sim"].bench.plant, result
+    sim, result = recording(_fig6, duration_s, **overrides)
+    duty, enable = sim.inputs()
+    return duty, enable, sim.bench.plant, result
 
 
 def _network(p_w: float, p_h: float, h_s: float, steps: int, **kw) -> np.ndarray:
