@@ -27,6 +27,7 @@ receiver sees ``RX_SILENCE_S`` of silence and calls ``Decoder.flush()``.
 
 from __future__ import annotations
 
+import itertools
 import math
 import struct
 from collections.abc import Callable
@@ -636,7 +637,7 @@ class _Codec:
     """Precompiled framing of one message type."""
 
     __slots__ = ("cls", "msg_type", "payload", "frame", "hdr_by_seq", "to_wire", "from_wire",
-                 "fmt", "fields", "min_size", "appended_ends")  # fmt: skip
+                 "fmt", "fields", "min_size", "short_sizes")  # fmt: skip
 
     def __init__(self, row: _Row) -> None:
         self.cls = row.cls
@@ -655,12 +656,14 @@ class _Codec:
         base = [f for f in row.fields if not f.appended]
         if row.fields[: len(base)] != tuple(base):
             raise AssertionError(f"{row.cls.__name__}: an appended field before a base one")
-        ends, at = [], struct.calcsize("<" + "".join(f.fmt for f in base))
-        for f in row.fields[len(base) :]:
-            at += struct.calcsize("<" + f.fmt)
-            ends.append(at)
-        self.min_size = ends[0] - struct.calcsize("<" + row.fields[len(base)].fmt) if ends else at
-        self.appended_ends = frozenset(ends)
+        self.min_size = struct.calcsize("<" + "".join(f.fmt for f in base))
+        # the shorter payloads an older peer may send: the 2.0 fields, then each appended one
+        self.short_sizes = frozenset(
+            itertools.accumulate(
+                (struct.calcsize("<" + f.fmt) for f in row.fields[len(base) : -1]),
+                initial=self.min_size,
+            )
+        )
 
 
 _BY_CLASS: dict[type, _Codec] = {row.cls: _Codec(row) for row in _ROWS}
@@ -906,7 +909,7 @@ def _decode_at(msg_type: int, seq: int, buf: Any, start: int, length: int) -> Me
     codec = _BY_TYPE.get(msg_type)
     field = NO_FIELD
     if codec is not None and (
-        codec.payload.size <= length or length == codec.min_size or length in codec.appended_ends
+        codec.payload.size <= length or length in codec.short_sizes
     ):
         try:
             if length >= codec.payload.size:
