@@ -26,19 +26,41 @@ import sys
 from pathlib import Path
 
 import numba
+from numba.core.caching import FunctionCache
 
 __all__ = ["KERNEL_SOURCES", "check", "kernel", "prepare"]
+
+
+class _KernelCache(FunctionCache):
+    """numba's on-disk cache of one kernel, loaded without refreshing numba's registries.
+
+    ``FunctionCache.load_overload`` first calls ``target_context.refresh()``: the first call
+    of a process imports and installs every implementation numba has (``numba.np.*``,
+    ``numba.typed``, the NRT...), 0.1-0.2 s of a fresh process's start-up on a quiet machine
+    (0.26-0.31 s of CPU for the whole kernel load under load 1-2, 0.11-0.15 s without it;
+    2 December). A cached kernel is machine code: loading it unpickles and links an object
+    file and needs none of those implementations, and with ``_nrt=False`` not the NRT either.
+    A cache miss still refreshes (numba's compiler does, ``compiler.compile_extra``)."""
+
+    def load_overload(self, sig, target_context):
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
 
 
 def kernel(fn=None, /, **options):
     """``numba.njit(cache=True, _nrt=False, **options)`` (see the module docstring); used
     bare (``@kernel``), with options (``@kernel(error_model="numpy")``) or as a call
-    (``kernel(py_function)``)."""
+    (``kernel(py_function)``). A kernel without the NRT loads from the cache through
+    :class:`_KernelCache` (a private attribute of numba's dispatcher, ``_cache``, replaced:
+    ``tests/firmware_model/test_kernel_cache.py`` fails if a numba release changes it)."""
     options.setdefault("cache", True)
     options.setdefault("_nrt", False)
     if fn is None:
-        return numba.njit(**options)
-    return numba.njit(**options)(fn)
+        return lambda f: kernel(f, **options)
+    dispatcher = numba.njit(**options)(fn)
+    if options["cache"] and not options["_nrt"]:
+        dispatcher._cache = _KernelCache(dispatcher.py_func)
+    return dispatcher
 
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -87,8 +109,10 @@ def prepare() -> None:
     set ``numba.np.arraymath._HAVE_BLAS``, which picks the inner product of its
     ``np.convolve``/``np.correlate`` (none in our kernels; ``np.dot`` checks for BLAS again
     when it compiles). The import costs 0.15-0.3 s, a third of a fresh process's kernel
-    load (cProfile, 2 December). Idempotent; a no-op once ``scipy.linalg`` is imported (a
-    command that uses it keeps numba's default)."""
+    load (cProfile, 2 December). The tick's kernels skip the refresh (:class:`_KernelCache`);
+    a process about to load kernels that need it (the planner's, with the NRT: ``serve``)
+    calls this first. Idempotent; a no-op once ``scipy.linalg`` is imported (a command that
+    uses it keeps numba's default)."""
     if _PREPARED:
         return
     _PREPARED.append(True)

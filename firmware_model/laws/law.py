@@ -13,7 +13,6 @@ import numpy as np
 import numpy.typing as npt
 
 from firmware_model import fixedpoint as fx
-from firmware_model import kernel_cache
 from firmware_model.laws import fixed_q, float64
 from firmware_model.laws.layout import (
     C_BUS_ADC,
@@ -111,7 +110,6 @@ class Law:
         if not isinstance(n, int) or n < 1:
             raise ValueError(f"batch = {n!r}: must be an integer >= 1")
         self.n = n
-        kernel_cache.prepare()  # before the first kernel loads
         servo, cur = params.servo, params.current
         self.fixed = servo.arithmetic == "fixed"
         #: The module of compiled steps of this arithmetic (``estimate``, ``servo``, ``current``).

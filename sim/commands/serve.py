@@ -101,6 +101,7 @@ def main(args: argparse.Namespace) -> int:
     import threading
     import time
 
+    from firmware_model import kernel_cache
     from planner import warm_up
     from serial_protocol.exceptions import CommandError
     from serial_protocol.pacing import LinePacer
@@ -116,7 +117,10 @@ def main(args: argparse.Namespace) -> int:
         load_bench(args.bench), seed=args.seed, overrides=_overrides(args), keep_log=False
     )
     # Load the S-curve planner's compiled kernel now, not at the first S-curve Move: a stall
-    # of 0.3-0.9 s in the paced loop below would overflow the link.
+    # of 0.3-0.9 s in the paced loop below would overflow the link. The tick's kernels load
+    # without numba's registries (kernel_cache._KernelCache); the planner's need them: load
+    # them without numba's BLAS probe (kernel_cache.prepare).
+    kernel_cache.prepare()
     warm_up()
     bench = sim.bench
     dt_s = sim.dt_s

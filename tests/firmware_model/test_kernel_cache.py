@@ -66,3 +66,34 @@ def test_the_walk_sees_through_imports():
     # the tick reaches the frame layout only through firmware_model/tick.py
     assert "serial_protocol/frame.py" in reachable_from("sim.tick")
     assert "serial_protocol/frame.py" not in reachable_from("sim.plant_kernel")
+
+
+_LOAD = """
+import sys
+from pathlib import Path
+from sim.config import load_experiment
+from sim.loop import run, warm_up
+exp = load_experiment(Path({root!r}) / "bench_configs" / "fig8.toml")
+warm_up(exp.bench)
+loaded = sorted(m for m in ("numba.np.linalg", "numba.np.arraymath", "numba.typed.typeddict")
+                if m in sys.modules)
+print("registries:", ",".join(loaded) or "none")
+"""
+
+
+def test_the_ticks_kernels_load_from_the_cache_without_numbas_registries():
+    """A cached kernel is linked, not compiled: ``_KernelCache`` skips numba's refresh, which
+    imports every implementation numba has (half of a fresh process's kernel load). The first
+    process may compile (an empty cache refreshes inside numba's compiler); the second loads
+    the same kernels from the cache and must not have imported numba's implementation modules.
+    """
+    import subprocess
+    import sys
+
+    code = _LOAD.format(root=str(ROOT))
+    env = {**__import__("os").environ, "PYTHONPATH": str(ROOT)}
+    first = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert first.returncode == 0, first.stderr
+    second = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
+    assert second.returncode == 0, second.stderr
+    assert second.stdout.strip().splitlines()[-1] == "registries: none", second.stdout
