@@ -76,6 +76,7 @@ __all__ = [
     "Study",
     "bench_value",
     "composite_design",
+    "default_noise_copies",
     "factorial_design",
     "first_fault",
     "member_overrides",
@@ -544,6 +545,11 @@ class SensitivityResult:
     wall_s: float
 
 
+def default_noise_copies(full: bool = False) -> int:
+    """Noise realisations of a run when none are asked for: 3, or 5 for the full study."""
+    return 5 if full else 3
+
+
 def run_sensitivity(
     *,
     quick: bool = False,
@@ -565,7 +571,7 @@ def run_sensitivity(
 
     if retune_how not in ("classic", "de"):
         raise ValueError(f"retune = {retune_how!r}: must be 'classic' or 'de'")
-    copies = (5 if full else 3) if noise_copies is None else noise_copies
+    copies = default_noise_copies(full) if noise_copies is None else noise_copies
     if isinstance(copies, bool) or not isinstance(copies, int) or not 1 <= copies <= 64:
         raise ValueError(f"noise copies = {copies!r}: must be an integer in 1..64")
     wall0 = time.perf_counter()

@@ -219,6 +219,8 @@ def trace_from_result(name: str, exp: Experiment, result: RunResult) -> Trace:
     tel = result.telemetry_arrays()
     applied = _command_ticks(exp, dt_s)
     log = result.log
+    if np.ndim(log.current_a) == 2:  # a batch: the PC decodes member 0's telemetry
+        log = log.member(0)
     return Trace(
         name=name,
         dt_s=dt_s,
@@ -241,24 +243,43 @@ def trace_from_result(name: str, exp: Experiment, result: RunResult) -> Trace:
     )
 
 
-def trace_from_log(name: str, exp: Experiment, log: RunLog) -> Trace:
-    """A :class:`Trace` from the simulator's log of one member, one row per tick: what its
-    telemetry would carry, unrounded (a batch sends the telemetry of member 0 only). No
-    replies and no link counters."""
+def _wire(x: np.ndarray, scale: float) -> np.ndarray:
+    """``x`` as the telemetry carries it: ``round(x * scale) / scale`` (the frame's rounding,
+    half to even as Python's ``round``)."""
+    return np.round(np.asarray(x, dtype=float) * scale) / scale
+
+
+def trace_from_log(
+    name: str, exp: Experiment, log: RunLog, ticks: np.ndarray | None = None
+) -> Trace:
+    """A :class:`Trace` from the simulator's log of one member: what its telemetry would
+    carry, frame by frame (a batch sends the telemetry of member 0 only). Rounded to the
+    wire's steps (1e-4 deg, 1e-4 deg/s, 1 mA, 1e-4 duty); the current and duty of the frame
+    of tick k are tick k-1's (the frame is built before the tick's current loop; 0 in the
+    first), so member 0's trace is its decoded telemetry value for value. ``ticks``: the
+    ticks to keep (those the PC decoded; default every tick). No replies and no link
+    counters."""
+    from serial_protocol.frame import CURRENT_SCALE, DUTY_SCALE, POS_SCALE, VEL_SCALE
+
     dt_s = exp.bench.dt_s
     applied = _command_ticks(exp, dt_s)
+    rows = np.arange(len(log.t_s)) if ticks is None else np.asarray(ticks, dtype=np.int64)
+
+    def late(x: np.ndarray) -> np.ndarray:  # the previous tick's value; 0 before the first
+        return np.where(rows > 0, np.asarray(x)[np.maximum(rows - 1, 0)], 0.0)
+
     return Trace(
         name=name,
         dt_s=dt_s,
-        t_s=np.asarray(log.t_s, dtype=float),
-        sp_pos_deg=log.sp_pos_deg,
-        sp_vel_dps=log.sp_vel_dps,
-        pos_deg=log.pos_deg,
-        vel_dps=log.vel_dps,
-        current_a=log.current_meas_a,
-        duty=log.duty,
-        state=np.asarray(log.state, dtype=np.int64),
-        fault=np.asarray(log.fault, dtype=np.int64),
+        t_s=rows * dt_s,
+        sp_pos_deg=_wire(log.sp_pos_deg[rows], POS_SCALE),
+        sp_vel_dps=_wire(log.sp_vel_dps[rows], VEL_SCALE),
+        pos_deg=_wire(log.pos_deg[rows], POS_SCALE),
+        vel_dps=_wire(log.vel_dps[rows], VEL_SCALE),
+        current_a=_wire(late(log.current_meas_a), CURRENT_SCALE),
+        duty=_wire(late(log.duty), DUTY_SCALE),
+        state=np.asarray(log.state, dtype=np.int64)[rows],
+        fault=np.asarray(log.fault, dtype=np.int64)[rows],
         command_t_s=tuple(tick * dt_s for tick, _ in applied),
         command_target_deg=tuple(_target_deg(c) for _, c in applied),
         command_a_max_dps2=tuple(float(c.get("a_max_dps2")) for _, c in applied),
@@ -274,21 +295,32 @@ def run_trace(
     *,
     progress: Callable[[int, int], None] | None = None,
     seed: int = 0,
-) -> Trace:
-    """Run ``exp`` through the simulated bench and the emulated UART; return what the PC
-    decoded. ``progress(tick, n_ticks)`` as in ``sim.loop.run``."""
-    result = run(exp, seed=seed, progress=progress)
-    return trace_from_result(name, exp, result)
+    copies: int = 1,
+) -> tuple[Trace, tuple[Trace, ...]]:
+    """Run ``exp`` through the simulated bench and the emulated UART in ``copies`` noise
+    realisations (one batch: every member draws its own encoder noise); return what the PC
+    decoded (member 0's telemetry) and every member as its telemetry would carry it
+    (:func:`trace_from_log`; member 0's is the decoded trace value for value).
+    ``progress(tick, n_ticks)`` as in ``sim.loop.run``."""
+    result = run(exp, seed=seed, batch=copies if copies > 1 else None, progress=progress)
+    trace = trace_from_result(name, exp, result)
+    ticks = np.round(trace.t_s / trace.dt_s).astype(np.int64)
+    log = result.log
+    members = [log] if copies == 1 else [log.member(k) for k in range(copies)]
+    return trace, tuple(trace_from_log(name, exp, m, ticks) for m in members)
 
 
 class Runner:
-    """Runs experiments one after another, each with its own progress display.
+    """Runs experiments one after another, each with its own progress display, each in
+    ``copies`` noise realisations (one batch per run).
 
     Args:
         quick: run :func:`scale_quick` forms.
         show_progress: draw a ``sim.progress.Progress`` per run on ``stream``.
         total_runs: how many runs to expect (for the ``[k/n]`` label).
         seed: noise and line-fault seed of every run.
+        copies: noise realisations of every run (the members of its batch; the PC decodes
+            member 0's telemetry). :attr:`copies_of` holds them by run name.
     """
 
     def __init__(
@@ -299,23 +331,30 @@ class Runner:
         total_runs: int = 0,
         stream: Any = None,
         seed: int = 0,
+        copies: int = 1,
     ) -> None:
+        if copies < 1:
+            raise ValueError(f"copies = {copies!r}: need at least 1")
         self.quick = quick
         self.show_progress = show_progress
         self.total_runs = total_runs
         self.stream = stream
         self.seed = seed
+        self.copies = copies
         self.count = 0
         self.ticks = 0
-        #: Every experiment run so far, by its name (to run it again, e.g. in noise copies).
+        #: Every experiment run so far, by its name (to run it again).
         self.experiments: dict[str, Experiment] = {}
+        #: Every run so far in its noise realisations, by its name (``run_trace``).
+        self.copies_of: dict[str, tuple[Trace, ...]] = {}
 
     def prepare(self, exp: Experiment) -> Experiment:
         """The form of ``exp`` this runner runs (quick or as written)."""
         return scale_quick(exp) if self.quick else exp
 
     def run(self, name: str, exp: Experiment) -> Trace:
-        """Run an experiment already in its final form (see :meth:`prepare`)."""
+        """Run an experiment already in its final form (see :meth:`prepare`); return what
+        the PC decoded (its noise realisations go to :attr:`copies_of`)."""
         from sim.progress import Progress
 
         self.count += 1
@@ -323,7 +362,10 @@ class Runner:
         label = f"[{self.count}/{max(self.total_runs, self.count)}] {name}"
         n_ticks = max(1, int(round(exp.duration_s / exp.bench.dt_s)))
         with Progress(label, n_ticks, stream=self.stream, enabled=self.show_progress) as bar:
-            trace = run_trace(name, exp, progress=bar.callback, seed=self.seed)
+            trace, copies = run_trace(
+                name, exp, progress=bar.callback, seed=self.seed, copies=self.copies
+            )
+        self.copies_of[name] = copies
         self.ticks += n_ticks
         return trace
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,6 +40,8 @@ from sim.reproduce.programs_demo import crossing, rest_t_s
 
 __all__ = [
     "DWELL_S",
+    "crossing_speeds",
+    "max_err",
     "GRID_S",
     "LookaheadResult",
     "plot",
@@ -124,6 +127,28 @@ def queue_experiment(exp: Experiment, waypoints: list[float], v_max: float, a_ma
     )
 
 
+def crossing_speeds(
+    trace: Trace, waypoints: Sequence[float], a_max_dps2: float, k: float = 1.0
+) -> tuple[list[float], list[float]]:
+    """The board's setpoint |v| and the encoder's |v| where the queue run ``trace`` first
+    reaches each inner waypoint (paper scale: ``waypoints`` in full-scale degrees, speeds
+    times ``k`` for a ``--quick`` run)."""
+    w_run = [w / (k * k) for w in waypoints]
+    board, encoder = [], []
+    t_from = 0.0
+    for n in range(1, len(w_run) - 1):
+        direction = 1.0 if w_run[n] > w_run[n - 1] else -1.0
+        v_sp, v_enc, t_from = crossing(trace, w_run[n], t_from, direction, a_max_dps2)
+        board.append(v_sp * k)
+        encoder.append(v_enc * k)
+    return board, encoder
+
+
+def max_err(trace: Trace) -> float:
+    """Largest |setpoint - encoder| (deg) as run (a tracking error does not scale as k^2)."""
+    return float(np.max(np.abs(trace.sp_pos_deg - trace.pos_deg)))
+
+
 def run(runner: Runner) -> LookaheadResult:
     exp = load("lookahead_program")
     moves = [c for _, c in move_commands(exp)]
@@ -144,24 +169,14 @@ def run(runner: Runner) -> LookaheadResult:
     stop_trace = runner.run("waypoints, stop at each", runner.prepare(exp))
     q_exp = queue_experiment(exp, waypoints, v_max, a_max)
     q_trace = runner.run("waypoints, board queue", runner.prepare(q_exp))
-    w_run = [w / (k * k) for w in waypoints]
-    board, crossings = [], []
-    t_from = 0.0
-    for n in range(1, len(w_run) - 1):
-        direction = 1.0 if w_run[n] > w_run[n - 1] else -1.0
-        v_sp, v_enc, t_from = crossing(q_trace, w_run[n], t_from, direction, a_max)
-        board.append(v_sp * k)
-        crossings.append(v_enc * k)
-    done_stop = rest_t_s(stop_trace, 0.0, w_run[-1])
-    done_q = rest_t_s(q_trace, 0.0, w_run[-1])
+    board, crossings = crossing_speeds(q_trace, waypoints, a_max, k)
+    done_stop = rest_t_s(stop_trace, 0.0, waypoints[-1] / (k * k))
+    done_q = rest_t_s(q_trace, 0.0, waypoints[-1] / (k * k))
     moving = np.flatnonzero(q_trace.sp_vel_dps != 0.0)
     board_motion = (
         math.nan if done_q is None or not moving.size
         else (done_q - float(q_trace.t_s[moving[0]])) * k - (len(stops) - 1) * DWELL_S
     )  # fmt: skip
-
-    def max_err(trace: Trace) -> float:  # as run (a tracking error does not scale as k^2)
-        return float(np.max(np.abs(trace.sp_pos_deg - trace.pos_deg)))
 
     return LookaheadResult(
         waypoints_deg=tuple(waypoints),

@@ -21,6 +21,7 @@ from sim.reproduce import (
     scurve_extras,
     seed002,
 )
+from sim.reproduce.drawing import Drawer
 from sim.reproduce.experiments import Runner, load, write_telemetry_csv
 
 __all__ = ["FIGURES", "TELEMETRY_DIR", "ReproduceOutput", "reproduce"]
@@ -81,76 +82,82 @@ def reproduce(
     wall0 = time.monotonic()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    copies = band.default_noise_copies(sensitivity) if noise_copies is None else noise_copies
     runner = Runner(
         quick=quick,
         show_progress=show_progress,
         total_runs=_RUNS_ALL if extras else _RUNS_PAPER,
         stream=stream,
+        # every run in its noise realisations, one batch each (at least 2 for a spread)
+        copies=max(copies, 2),
     )
     bench = load("fig8").bench
     limit_a = bench.firmware.limits.current_limit_a
-    r6 = fig6.run(runner)
-    r7 = fig7.run(runner)
-    r8 = fig8.run(runner)
-    fig6.plot(r6, out / "fig6.png", limit_a)
-    fig7.plot(r7, out / "fig7.png", limit_a)
-    fig8.plot(r8, out / "fig8.png", limit_a)
-    paths = [out / "fig6.png", out / "fig7.png", out / "fig8.png"]
-    tel = out / TELEMETRY_DIR
-    traces = [("fig6_step", r6.step), ("fig6_trapezoid", r6.planned), ("fig8", r8.trace)]
-    traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
-    for stem, trace in traces:
-        paths.append(write_telemetry_csv(trace, tel / f"{stem}.csv"))
-    if show_progress:
-        print(
-            f"[sensitivity] {'full' if sensitivity else 'cheap'} study, {retune} re-tune...",
-            file=stream if stream is not None else sys.stderr,
+    paths: list[Path] = []
+    # Each figure is drawn by a second process as soon as its runs are done (drawing
+    # and saving PNGs is about half of the command's work), overlapping what follows.
+    with Drawer() as drawer:
+        r6 = fig6.run(runner)
+        r7 = fig7.run(runner)
+        r8 = fig8.run(runner)
+        drawer.submit(fig6.plot, r6, out / "fig6.png", limit_a)
+        drawer.submit(fig7.plot, r7, out / "fig7.png", limit_a)
+        drawer.submit(fig8.plot, r8, out / "fig8.png", limit_a)
+        paths += [out / "fig6.png", out / "fig7.png", out / "fig8.png"]
+        tel = out / TELEMETRY_DIR
+        traces = [("fig6_step", r6.step), ("fig6_trapezoid", r6.planned), ("fig8", r8.trace)]
+        traces += [(f"fig7_{r.name}", r.trace) for r in r7.runs]
+        for stem, trace in traces:
+            drawer.submit(write_telemetry_csv, trace, tel / f"{stem}.csv")
+            paths.append(tel / f"{stem}.csv")
+        if show_progress:
+            print(
+                f"[sensitivity] {'full' if sensitivity else 'cheap'} study, {retune} re-tune...",
+                file=stream if stream is not None else sys.stderr,
+            )
+        sens = band.run_sensitivity(
+            quick=quick, full=sensitivity, retune_how=retune, noise_copies=noise_copies
         )
-    sens = band.run_sensitivity(
-        quick=quick, full=sensitivity, retune_how=retune, noise_copies=noise_copies
-    )
-    band.plot(sens.band, out / "fig6_band.png")
-    s2 = sc = la = pg = None
-    if extras:
-        s2 = seed002.run(runner)
-        sc = scurve_extras.run(runner, r7, r8)
-        k = sc.fig7.time_scale
-        fig7.plot(
-            sc.fig7,
-            out / "fig7_scurve.png",
-            limit_a,
-            # the run's jerk: the time scaling multiplies it by k
-            title=f"Fig. 7 with the S-curve planner ($j_{{max}}$ {sc.j_max_dps3 * k:g} °/s$^3$)",
-            acceleration=True,
-        )
-        fig8.plot(sc.fig8, out / "fig8_scurve.png", limit_a)
-        la = lookahead_demo.run(runner)
-        lookahead_demo.plot(la, out / "lookahead.png", limit_a)
-        pg = programs_demo.run(runner)
-        programs_demo.plot_programs(pg, out / "programs.png", limit_a)
-        programs_demo.plot_stream(pg, out / "stream.png")
-        paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png",
-                  out / "programs.png", out / "stream.png"]  # fmt: skip
-    # Error bars for REPORT.md sections 1, 2 and 4: each paper run again in noise copies
-    # (one batch per run, measured as the run itself).
+        drawer.submit(band.plot, sens.band, out / "fig6_band.png")
+        s2 = sc = la = pg = None
+        if extras:
+            s2 = seed002.run(runner)
+            sc = scurve_extras.run(runner, r7, r8)
+            k = sc.fig7.time_scale
+            drawer.submit(
+                fig7.plot,
+                sc.fig7,
+                out / "fig7_scurve.png",
+                limit_a,
+                # the run's jerk: the time scaling multiplies it by k
+                title=f"Fig. 7 with the S-curve planner ($j_{{max}}$ {sc.j_max_dps3 * k:g} "
+                "°/s$^3$)",
+                acceleration=True,
+            )
+            drawer.submit(fig8.plot, sc.fig8, out / "fig8_scurve.png", limit_a)
+            la = lookahead_demo.run(runner)
+            drawer.submit(lookahead_demo.plot, la, out / "lookahead.png", limit_a)
+            pg = programs_demo.run(runner)
+            drawer.submit(programs_demo.plot_programs, pg, out / "programs.png", limit_a)
+            drawer.submit(programs_demo.plot_stream, pg, out / "stream.png")
+            paths += [out / "fig7_scurve.png", out / "fig8_scurve.png", out / "lookahead.png",
+                      out / "programs.png", out / "stream.png"]  # fmt: skip
+        paths.append(out / "fig6_band.png")
+    # Error bars: every run's metrics over its noise realisations (REPORT.md, sections 1-7).
     from sim.reproduce.metrics import measure  # not at the top: python -m runs sensitivity
-    from sim.reproduce.sensitivity import metric_spread, noise_traces
+    from sim.reproduce.sensitivity import metric_spread
 
-    noise_runs = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
-    noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
+    measured = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
+    measured += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
     if sc is not None:  # measured as scurve_extras measures them (Fig. 7 from the interrupt)
-        noise_runs += [(r.trace, r.trace.command_t_s[-1]) for r in sc.fig7.runs]
-        noise_runs += [(sc.fig8.trace, None)]
-    copies = max(sens.noise_copies, 2)
-    copy_traces = {
-        t.name: tuple(noise_traces(t.name, runner.experiments[t.name], copies))
-        for t, _ in noise_runs
+        measured += [(r.trace, r.trace.command_t_s[-1]) for r in sc.fig7.runs]
+        measured += [(sc.fig8.trace, None)]
+    copy_traces = dict(runner.copies_of)
+    copy_metrics = {
+        t.name: tuple(measure(c, limit_a, from_t) for c in copy_traces[t.name])
+        for t, from_t in measured
     }
-    noise = {
-        t.name: metric_spread([measure(c, limit_a, from_t) for c in copy_traces[t.name]])
-        for t, from_t in noise_runs
-    }
-    paths.append(out / "fig6_band.png")
+    noise = {name: metric_spread(rows) for name, rows in copy_metrics.items()}
     wall_s = time.monotonic() - wall0
     inputs = report.ReportInputs(
         fig6=r6,
@@ -170,6 +177,7 @@ def reproduce(
         sensitivity=sens,
         noise=noise,
         noise_traces=copy_traces,
+        copy_metrics=copy_metrics,
     )
     report_path = out / "REPORT.md"
     report.write_report(inputs, report_path)

@@ -40,7 +40,17 @@ from sim.reproduce import seed002
 from sim.reproduce.experiments import Runner, Trace, load
 from sim.reproduce.plots import SHAFT_NOTE, Curve, Marker, Point, paper_figure
 
-__all__ = ["ProgramsResult", "crossing", "plot_programs", "plot_stream", "rest_t_s", "run"]
+__all__ = [
+    "ProgramsResult",
+    "crossing",
+    "junction_speeds",
+    "max_err",
+    "plot_programs",
+    "plot_stream",
+    "rest_t_s",
+    "run",
+    "stream_rows",
+]
 
 A_MAX_DPS2 = 500.0  # the program's acceleration (SetLimits before it; the queue uses it)
 V_LIMIT_DPS = 990.0
@@ -70,6 +80,8 @@ class ProgramsResult:
     tables: tuple[seed002.TableComparison, seed002.TableComparison]
     # per table: the board's setpoint velocity and the encoder's velocity at each row
     table_vel_dps: tuple[tuple[np.ndarray, np.ndarray], ...]
+    # per table: when its stream was sent (s) and the position it starts from (deg)
+    stream_starts: tuple[tuple[float, float], ...] = ()
 
 
 def _limits(t_s: float) -> ScriptedCommand:
@@ -114,6 +126,34 @@ def rest_t_s(trace: Trace, t_from: float, target: float) -> float | None:
     return float(trace.t_s[i]) if i < len(trace.t_s) else None
 
 
+def junction_speeds(trace: Trace, waypoints: tuple[float, ...]) -> tuple[list, list]:
+    """The board's setpoint |v| and the encoder's |v| where the queue run ``trace``
+    crosses each inner waypoint (deg/s)."""
+    board, measured = [], []
+    t_from = T_START_S
+    for k in range(1, len(waypoints) - 1):
+        direction = 1.0 if waypoints[k] > waypoints[k - 1] else -1.0
+        v_sp, v_enc, t_from = crossing(trace, waypoints[k], t_from, direction)
+        board.append(v_sp)
+        measured.append(v_enc)
+    return board, measured
+
+
+def max_err(trace: Trace) -> float:
+    """Largest |setpoint - encoder| while moving (deg)."""
+    live = trace.state == int(State.MOVING)
+    return float(np.max(np.abs(trace.sp_pos_deg - trace.pos_deg)[live]))
+
+
+def stream_rows(trace: Trace, t_s: float, rows: int) -> np.ndarray:
+    """Indices of the frames every 150 ms of a stream sent at ``t_s``, ``rows`` of them,
+    from its start (the first MOVING frame after its START)."""
+    i0 = trace.index_at(t_s)
+    i_start = i0 + int(np.argmax(trace.state[i0:] == int(State.MOVING)))
+    ticks = int(round(PERIOD_S / trace.dt_s))
+    return np.minimum(i_start + ticks * np.arange(rows), len(trace.t_s) - 1)
+
+
 def _table_stream(table: int, p0: float) -> tuple[list[float], list[float], object]:
     if table == 1:
         prof = trapezoid_from_periods(120.0, 50.0, PERIOD_S, n_acc=4)
@@ -154,19 +194,9 @@ def run(runner: Runner) -> ProgramsResult:
                           title="inspection scan, stopping at every waypoint")  # fmt: skip
     q_trace = runner.run("inspection scan, board queue", queue_exp)
     s_trace = runner.run("inspection scan, stop at each", stop_exp)
-    board, measured = [], []
-    t_from = T_START_S
-    for k in range(1, len(waypoints) - 1):
-        direction = 1.0 if waypoints[k] > waypoints[k - 1] else -1.0
-        v_sp, v_enc, t_from = crossing(q_trace, waypoints[k], t_from, direction)
-        board.append(v_sp)
-        measured.append(v_enc)
+    board, measured = junction_speeds(q_trace, waypoints)
     done_q = rest_t_s(q_trace, T_START_S, waypoints[-1])
     done_s = rest_t_s(s_trace, T_START_S, waypoints[-1])
-
-    def max_err(trace: Trace) -> float:
-        live = trace.state == int(State.MOVING)
-        return float(np.max(np.abs(trace.sp_pos_deg - trace.pos_deg)[live]))
 
     # 4. seed 002's tables streamed: Table 1 from 0, Table 2 from 120 deg
     p1, v1, s1 = _table_stream(1, 0.0)
@@ -183,11 +213,7 @@ def run(runner: Runner) -> ProgramsResult:
         (0.1, s1, 0.0, "Table 1 (trapezoid), streamed", seed002.PAPER_TABLE1),
         (t2, s2, 120.0, "Table 2 (S-curve), streamed", seed002.PAPER_TABLE2),
     )):  # fmt: skip
-        i0 = st_trace.index_at(t_s)
-        # the stream starts moving (t0) at the first MOVING frame after its START
-        i_start = i0 + int(np.argmax(st_trace.state[i0:] == int(State.MOVING)))
-        ticks = int(round(PERIOD_S / st_trace.dt_s))
-        idx = np.minimum(i_start + ticks * np.arange(len(s.p)), len(st_trace.t_s) - 1)
+        idx = stream_rows(st_trace, t_s, len(s.p))
         cols = [s.p, s.v, s.a_held] if k == 0 else [s.p, s.v, s.a, s.j_held]
         names = ("position", "velocity", "acceleration") + (("jerk",) if k else ())
         tables.append(seed002.TableComparison(
@@ -212,6 +238,7 @@ def run(runner: Runner) -> ProgramsResult:
         stream=st_trace,
         tables=(tables[0], tables[1]),
         table_vel_dps=tuple(table_vel),
+        stream_starts=((0.1, 0.0), (t2, 120.0)),
     )
 
 

@@ -13,6 +13,8 @@ import statistics
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from firmware_model.units import GEAR_RATIO, TOTAL_RATIO
 from serial_protocol import frame
 from sim.reproduce import (
@@ -50,8 +52,11 @@ class ReportInputs:
     sensitivity: band.SensitivityResult | None = None
     #: run name -> RunMetrics field -> (mean, sd) over noise realisations
     noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None
-    #: run name -> the run in noise realisations (``sensitivity.noise_traces``)
+    #: run name -> the run in its noise realisations (``Runner.copies_of``; copy 0 is the
+    #: decoded run): every measured number of the report is mean ± sd over them
     noise_traces: Mapping[str, Sequence[Trace]] | None = None
+    #: run name -> RunMetrics of each noise realisation (measured as ``noise``)
+    copy_metrics: Mapping[str, Sequence[RunMetrics]] | None = None
 
 
 def _f(x: float | None, digits: int = 1) -> str:
@@ -60,16 +65,57 @@ def _f(x: float | None, digits: int = 1) -> str:
     return f"{x:,.{digits}f}"
 
 
-def _pm(
-    inp: ReportInputs, run: str, fn: Callable[[Trace], float | None], scale: float = 1.0
-) -> str:
-    """``" ± sd"``: the standard deviation of ``fn`` over the noise realisations of run
-    ``run`` (times ``scale``), or ``""`` when the run has none (or ``fn`` is undefined)."""
-    traces = (inp.noise_traces or {}).get(run, ())
-    vals = [v for v in (fn(t) for t in traces) if v is not None and math.isfinite(v)]
+def _copies(inp: ReportInputs, runs: str | Sequence[str]) -> list[tuple[Trace, ...]]:
+    """The noise realisations of ``runs`` (one run name or several), zipped by copy."""
+    names = (runs,) if isinstance(runs, str) else tuple(runs)
+    per = [(inp.noise_traces or {}).get(n, ()) for n in names]
+    return list(zip(*per, strict=True)) if all(per) else []
+
+
+def _values(
+    inp: ReportInputs, runs: str | Sequence[str], fn: Callable[..., float | None]
+) -> list[float]:
+    """``fn(trace, ...)`` on every noise realisation of ``runs`` (one trace per run, the same
+    copy of each), the undefined ones (None, NaN) left out."""
+    vals = (fn(*c) for c in _copies(inp, runs))
+    return [float(v) for v in vals if v is not None and math.isfinite(v)]
+
+
+def _pm_text(vals: Sequence[float], digits: int, scale: float = 1.0) -> str:
+    """``"mean ± sd"`` of ``vals`` (times ``scale``; the mean with ``digits`` decimals, the sd
+    to 2 significant digits); ``"-"`` if there are none. The one format of a measured
+    number in the report: a number without ± is exact by construction (section 4)."""
+    if not vals:
+        return "-"
+    mean = statistics.fmean(vals) * scale
     if len(vals) < 2:
-        return ""
-    return f" ± {statistics.stdev(vals) * abs(scale):.2g}"
+        return f"{_f(mean, digits)} (one realisation)"
+    return f"{_f(mean, digits)} ± {_sd(statistics.stdev(vals) * abs(scale))}"
+
+
+def _sd(sd: float) -> str:
+    """A standard deviation to 2 significant digits, without an exponent from 1e-3 up."""
+    if sd == 0.0 or not 1e-3 <= sd < 1e6:
+        return f"{sd:.2g}"
+    decimals = 1 - math.floor(math.log10(sd))
+    return f"{round(sd, decimals):,.{max(decimals, 0)}f}"
+
+
+def _ms(
+    inp: ReportInputs,
+    runs: str | Sequence[str],
+    fn: Callable[..., float | None],
+    digits: int = 1,
+    scale: float = 1.0,
+) -> str:
+    """Mean ± standard deviation of ``fn`` over the noise realisations of ``runs``."""
+    return _pm_text(_values(inp, runs, fn), digits, scale)
+
+
+def _metric(inp: ReportInputs, run: str, field: str, digits: int, scale: float = 1.0) -> str:
+    """Mean ± sd of a :class:`RunMetrics` field of ``run`` over its noise realisations."""
+    vals = [getattr(m, field) for m in (inp.copy_metrics or {}).get(run, ())]
+    return _pm_text([v for v in vals if v is not None and math.isfinite(v)], digits, scale)
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
@@ -78,15 +124,23 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
     return out + [""]
 
 
+def _planned_runs(inp: ReportInputs) -> list[str]:
+    """The planned runs of Fig. 6-8 (trapezoid), by name."""
+    return [inp.fig6.planned.name, inp.fig8.trace.name] + [r.trace.name for r in inp.fig7.runs]
+
+
 def _units(inp: ReportInputs) -> list[str]:
-    step = inp.fig6.step
+    step = inp.fig6.step.name
     v_max = 990.0
-    t_vmax = fig6.time_to_speed_s(step, 0.99 * v_max)
-    mean_acc = 0.99 * v_max / t_vmax
-    top_dps = float(max(step.vel_dps))
     motor_rpm = v_max * GEAR_RATIO / 6.0
-    planned = [inp.fig6.planned_metrics, inp.fig8.metrics] + [r.metrics for r in inp.fig7.runs]
-    planned_peak = max(m.peak_current_a for m in planned)
+    runs = _planned_runs(inp)
+    # per noise realisation (copy k of every run): the largest peak over the planned runs
+    per_copy = zip(*((inp.copy_metrics or {}).get(n, ()) for n in runs), strict=True)
+    planned_peak = _pm_text([max(m.peak_current_a for m in c) for c in per_copy], 2)
+
+    def t_vmax(t: Trace) -> float:
+        return fig6.time_to_speed_s(t, 0.99 * v_max)
+
     return [
         "## 1. How the paper's numbers are read",
         "",
@@ -108,79 +162,91 @@ def _units(inp: ReportInputs) -> list[str]:
         "then sits near the top speed of a 24 V motor through 80:1, which is what makes 990 "
         "a natural cruise speed. I found nothing in the paper that contradicts this reading.",
         "* **Can the bench deliver it?** In the Fig. 6 run without planning the bench model, "
-        f"at its 5 A limit, gets from rest to 99 % of 990 deg/s in {_f(t_vmax, 3)}"
-        f"{_pm(inp, step.name, lambda t: fig6.time_to_speed_s(t, 0.99 * v_max))} s (mean "
-        f"{_f(mean_acc, 0)} deg/s², {_f(mean_acc / 148.0, 0)} times the paper's a_max = 148) "
-        f"and holds 990 deg/s (peak {_f(top_dps)}"
-        f"{_pm(inp, step.name, lambda t: float(max(t.vel_dps)))} with the velocity loop's "
-        "overshoot) at 24 V: "
+        f"at its 5 A limit, gets from rest to 99 % of 990 deg/s in {_ms(inp, step, t_vmax, 3)}"
+        " s (mean "
+        f"{_ms(inp, step, lambda t: 0.99 * v_max / t_vmax(t), 0)} deg/s², "
+        f"{_ms(inp, step, lambda t: 0.99 * v_max / t_vmax(t) / 148.0, 1)} times the paper's "
+        "a_max = 148) "
+        f"and holds 990 deg/s (peak {_ms(inp, step, lambda t: float(max(t.vel_dps)))} with "
+        "the velocity loop's overshoot) at 24 V: "
         "the paper's limits are within 24 V and 5 A. In the planned runs of Fig. 6-8 the "
-        f"peak current is {_f(planned_peak, 2)} A (section 4). docs/model.md has the motor "
+        f"peak current is {planned_peak} A (section 4). docs/model.md has the motor "
         "arithmetic.",
         "",
     ]
 
 
+def _jumps(inp: ReportInputs, run: str) -> str:
+    """Fig. 6's velocity jumps, each as time (acceleration), mean ± sd over the noise
+    realisations (which find the same number of jumps, or the report says they do not)."""
+    per = [fig6.velocity_jumps(c[0]) for c in _copies(inp, run)]
+    counts = sorted({len(j) for j in per})
+    if not per or counts == [0]:
+        return "none"
+    if len(counts) > 1:
+        return f"{counts[0]} to {counts[-1]} jumps over the {len(per)} noise realisations"
+    return ", ".join(
+        f"{_pm_text([j[n][0] for j in per], 2)} s ({_pm_text([j[n][1] for j in per], 0)} deg/s²)"
+        for n in range(counts[0])
+    )
+
+
 def _fig6_rows(inp: ReportInputs) -> list[list[str]]:
     r = inp.fig6
-    sm, pm = r.step_metrics, r.planned_metrics
-    jumps = fig6.velocity_jumps(r.step)
-    jump_txt = ", ".join(f"{t:.2f} s ({a:+,.0f} deg/s²)" for t, a in jumps) or "none"
-    reach = _first_reach(r.step)
-    settle = fig6.settle_t_s(r.step, 0.5)
-
-    def sd(fn: Callable[[Trace], float | None]) -> str:  # the step's noise error bar
-        return _pm(inp, r.step.name, fn)
-
-    peak_t = fig6.overshoot_peak_t_s(r.step)
+    step, planned = r.step.name, r.planned.name
     target = r.target_deg
     v_max = 990.0
-    t_vmax = fig6.time_to_speed_s(r.step, 0.99 * v_max)
+
+    def sd(fn: Callable[[Trace], float | None], digits: int) -> str:  # the step's copies
+        return _ms(inp, step, fn, digits)
+
+    def t_vmax(t: Trace) -> float:
+        return fig6.time_to_speed_s(t, 0.99 * v_max)
+
     # The mean acceleration a step at v_max would need to arrive at the paper's 3.5 s:
     # S / v + v / (2 a) = 3.5.
     needed = v_max / (2.0 * (fig6.PAPER_ARRIVAL_S - target / v_max))
     why_arrival = (
         f"A step at v_max arrives after about S / v_max + t_acc / 2 = {target / v_max:.2f} s "
-        f"+ {t_vmax / 2:.2f} s: the bench model reaches 990 deg/s in {t_vmax:.2f} s at 5 A. "
+        f"+ {sd(lambda t: t_vmax(t) / 2, 2)} s: the bench model reaches 990 deg/s in "
+        f"{sd(t_vmax, 2)} s at 5 A. "
         f"Arriving at 3.5 s would need a mean acceleration of about {needed:,.0f} deg/s², "
         "i.e. a slower motor or more inertia than the assumed ones (the paper gives no motor "
         "data; nothing was tuned to match), or the paper's 3.5 s is read at the overshoot, "
-        f"which peaks here at {peak_t:.2f} s."
+        f"which peaks here at {sd(fig6.overshoot_peak_t_s, 2)} s."
     )
     return [
-        ["Fig. 6, no planning: velocity jumps", "at 0 s and about 3.5 s", jump_txt,
+        ["Fig. 6, no planning: velocity jumps", "at 0 s and about 3.5 s", _jumps(inp, step),
          "Same two jumps, at the start and where the braking begins (|a| > 1000 deg/s² "
          "between frames); the second is earlier for the reason below."],
         ["Fig. 6, no planning: reaches the target", "about 3.5 s",
-         f"reaches {target:g} deg at {_f(reach, 2)}{sd(_first_reach)} s; overshoot peak at "
-         f"{peak_t:.2f}{sd(fig6.overshoot_peak_t_s)} s; within 0.5 deg for good from "
-         f"{_f(settle, 2)}{sd(lambda t: fig6.settle_t_s(t, 0.5))} s", why_arrival],
+         f"reaches {target:g} deg at {sd(_first_reach, 2)} s; overshoot peak at "
+         f"{sd(fig6.overshoot_peak_t_s, 2)} s; within 0.5 deg for good from "
+         f"{sd(lambda t: fig6.settle_t_s(t, 0.5), 2)} s", why_arrival],
         ["Fig. 6, no planning: overshoot", "\"large\" (no number printed)",
-         f"{_f(sm.overshoot_deg)}{sd(lambda t: float(max(t.pos_deg)) - target)} deg "
-         f"({_f(100 * sm.overshoot_deg / target, 2)} % of the move)",
+         f"{_metric(inp, step, 'overshoot_deg', 1)} deg "
+         f"({_metric(inp, step, 'overshoot_deg', 2, 100.0 / target)} % of the move)",
          "Same behaviour; the paper prints no number to compare."],
         ["Fig. 6, no planning: peak current", "not printed",
-         f"{_f(sm.peak_current_a, 2)}{sd(lambda t: float(max(abs(t.current_a))))} A (true "
-         f"{_f(sm.peak_true_current_a, 2)}"
-         f"{sd(lambda t: float(max(abs(t.true_current_a))))} A)",
+         f"{_metric(inp, step, 'peak_current_a', 2)} A (true "
+         f"{_metric(inp, step, 'peak_true_current_a', 2)} A)",
          "The current loop overshoots its 5 A clamp by a few percent at the step (below the "
          "over-current trip, so no fault)."],
         ["Fig. 6, trapezoid: velocity changes smoothly, no overshoot", "yes (curve)",
-         f"largest planned step {_f(pm.max_sp_vel_step_dps, 3)} deg/s per tick, "
-         f"overshoot {_f(pm.overshoot_deg, 3)}"
-         f"{_pm(inp, r.planned.name, lambda t: max(float(max(t.pos_deg)) - target, 0.0))} "
-         f"deg, arrival {_f(pm.arrival_t_s, 2)} s",
+         f"largest planned step {_f(r.planned_metrics.max_sp_vel_step_dps, 3)} deg/s per "
+         f"tick (planned), overshoot {_metric(inp, planned, 'overshoot_deg', 3)} deg, "
+         f"arrival {_metric(inp, planned, 'arrival_t_s', 2)} s",
          "Agrees. The planned move (a triangle at 148 deg/s², peak "
-         f"{_f(max(r.planned.sp_vel_dps))} deg/s) takes longer than the step, as in the "
-         "paper's Fig. 6."],
+         f"{_f(max(r.planned.sp_vel_dps))} deg/s planned) takes longer than the step, as in "
+         "the paper's Fig. 6."],
     ]  # fmt: skip
 
 
 def _first_reach(trace: Trace) -> float:
     target = trace.command_target_deg[-1]
     i0 = trace.index_at(trace.command_t_s[-1])
-    hits = [i for i in range(i0, len(trace.t_s)) if trace.pos_deg[i] >= target]
-    return float(trace.t_s[hits[0]]) if hits else math.nan
+    hits = np.flatnonzero(trace.pos_deg[i0:] >= target)
+    return float(trace.t_s[i0 + hits[0]]) if hits.size else math.nan
 
 
 def _fig7_rows(inp: ReportInputs) -> list[list[str]]:
@@ -194,7 +260,8 @@ def _fig7_rows(inp: ReportInputs) -> list[list[str]]:
                 "starts at 400 deg/s",
                 f"case {r.observed_case} (planner: {r.planner_case}), "
                 f"{'cruises' if r.cruises else 'no cruise'}, starts at "
-                f"{_f(r.start_vel_dps)} deg/s at {_f(r.start_pos_deg, 2)} deg",
+                f"{_f(r.start_vel_dps)} deg/s at {_f(r.start_pos_deg, 2)} deg (planned: the "
+                "board's setpoint)",
                 "Agrees." if same else "Differs: see the metrics below.",
             ]
         )
@@ -213,8 +280,8 @@ def _fig8_rows(inp: ReportInputs) -> list[list[str]]:
                 f"Table 1, S = {row.target_mdeg:.0e}".replace("e+0", "e"),
                 f"{row.paper_state}, {row.paper_vel_dps:g} deg/s, {row.paper_t_s:g} s",
                 f"{row.sim_state}, {_f(row.sim_sp_vel_dps)} deg/s planned "
-                f"({_f(row.sim_vel_dps)}{_pm(inp, name, _vel_at(n), k)} measured), "
-                f"{row.sim_t_s:.3f} s",
+                f"({_ms(inp, name, _vel_at(n), 1, k)} measured), at {row.sim_t_s:.3f} s (the "
+                "tick after the command)",
                 why,
             ]
         )
@@ -266,7 +333,7 @@ def _consistency(inp: ReportInputs) -> list[str]:
         "(commanded position and velocity, state/case of the new plan):",
         "",
     ]
-    header = ["a_max (deg/s²)"] + [f"t = {t:g} s" for *_, t in fig8.PAPER_TABLE1]
+    header = ["a_max (deg/s²), the planner alone"] + [f"t = {t:g} s" for *_, t in fig8.PAPER_TABLE1]
     rows = []
     for a in (imp["row4"], 148.0, imp["row3_min"], 165.0):
         if math.isnan(a):
@@ -286,36 +353,41 @@ def _consistency(inp: ReportInputs) -> list[str]:
     return lines
 
 
-def _metrics_table(
-    runs: Sequence[tuple[RunMetrics, float]],
-    noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None,
-) -> list[str]:
+def _faults(metrics: Sequence[RunMetrics]) -> str:
+    """The fault codes seen, with in how many noise realisations if not in all."""
+    seen = sorted({f for m in metrics for f in m.faults})
+    if not seen:
+        return "none"
+    out = []
+    for f in seen:
+        n = sum(f in m.faults for m in metrics)
+        out.append(str(f) if n == len(metrics) else f"{f} (in {n} of {len(metrics)})")
+    return ", ".join(out)
+
+
+def _metrics_table(inp: ReportInputs, runs: Sequence[RunMetrics]) -> list[str]:
     header = [
-        "run", "largest planned velocity step (deg/s per tick)",
+        "run", "largest planned velocity step (deg/s per tick; planned)",
         "largest measured velocity step (deg/s per tick)", "overshoot (deg)",
-        "peak current decoded / true (A), limit", "RMS / max tracking error (deg)", "faults",
-        "telemetry gaps",
+        "peak current decoded / true (A)", "RMS / max tracking error (deg)",
+        "faults (in any realisation)", "telemetry gaps (count, decoded run)",
     ]  # fmt: skip
-    noise = noise or {}
-
-    def cell(m: RunMetrics, name: str, scale: float, digits: int) -> str:
-        text = _f(getattr(m, name) * scale, digits)
-        sd = noise.get(m.name, {}).get(name)
-        return text if sd is None else f"{text} ± {sd[1] * scale:.2g}"
-
     rows = []
-    for m, k in runs:
+    for m in runs:
+
+        def cell(name: str, digits: int, m: RunMetrics = m) -> str:
+            return _metric(inp, m.name, name, digits)
+
         rows.append(
             [
                 m.name,
-                cell(m, "max_sp_vel_step_dps", k, 3),
-                cell(m, "max_vel_step_dps", k, 3),
-                cell(m, "overshoot_deg", k * k, 3),
-                f"{cell(m, 'peak_current_a', 1.0, 2)} / {cell(m, 'peak_true_current_a', 1.0, 2)}"
-                f", {m.current_limit_a:g}",
-                f"{cell(m, 'rms_tracking_error_deg', k * k, 3)} / "
-                f"{cell(m, 'max_tracking_error_deg', k * k, 3)}",
-                ", ".join(str(f) for f in m.faults) or "none",
+                _f(m.max_sp_vel_step_dps, 3),
+                cell("max_vel_step_dps", 3),
+                cell("overshoot_deg", 3),
+                f"{cell('peak_current_a', 2)} / {cell('peak_true_current_a', 2)}"
+                f" (limit {m.current_limit_a:g})",
+                f"{cell('rms_tracking_error_deg', 3)} / {cell('max_tracking_error_deg', 3)}",
+                _faults((inp.copy_metrics or {}).get(m.name, (m,))),
                 str(m.frame_gaps),
             ]
         )
@@ -337,18 +409,34 @@ def _replan_steps(inp: ReportInputs) -> list[str]:
 
     rows = [
         [f"{r.target_mdeg:.0e}".replace("e+0", "e"), f"{r.sim_t_s:.3f}",
-         _f(r.sp_vel_step_dps, 3), _f(r.vel_step_dps, 3) + _pm(inp, name, measured_step(n))]
+         _f(r.sp_vel_step_dps, 3), _ms(inp, name, measured_step(n), 3)]
         for n, r in enumerate(inp.fig8.rows)
     ]  # fmt: skip
     return [
         f"Velocity steps around each replan of Fig. 8 (largest change between two frames "
         f"within ±5 ticks; a_max·Δt = {a * dt:.3f} deg/s, which the --quick scaling keeps):",
         "",
-        *_table(["target", "replan at (s)", "planned step", "measured step"], rows),
+        *_table(
+            [
+                "target",
+                "replan at (s; the tick after the command)",
+                "planned step",
+                "measured step",
+            ],
+            rows,
+        ),  # fmt: skip
     ]
 
 
-def _seed002(res: seed002.Seed002Result) -> list[str]:
+def _largest(per_copy: Sequence[np.ndarray], digits: int, unit: str = "") -> str:
+    """The largest of each realisation's ``|difference|`` per row: mean ± sd, and its row."""
+    peaks = [float(np.max(np.abs(d))) for d in per_copy]
+    rows = sorted({int(np.argmax(np.abs(d))) for d in per_copy})
+    where = f"row {rows[0]}" if len(rows) == 1 else "rows " + ", ".join(map(str, rows))
+    return f"{_pm_text(peaks, digits)}{unit} ({where})"
+
+
+def _seed002(inp: ReportInputs, res: seed002.Seed002Result) -> list[str]:
     lines = [
         "## 6. Seed 002, Tables 1 and 2",
         "",
@@ -356,33 +444,38 @@ def _seed002(res: seed002.Seed002Result) -> list[str]:
         "(`planner.sample_fixed_period`), and the board running the same moves on the "
         "turntable (120 axis degrees at 50 deg/s; `bench_configs/seed002_tables.toml`): its "
         "setpoint and encoder position decoded from the telemetry every 75 ticks (150 ms), "
-        "relative to the start of the move.",
+        "relative to the start of the move. The planner and the board's setpoint are exact "
+        "(planned); the encoder is mean ± sd over the run's noise realisations.",
         "",
     ]
-    for tb in res.tables:
+    copies = [c[0] for c in _copies(inp, res.trace.name)]
+    for move, tb in enumerate(res.tables):
         cols = tb.columns
+        n_rows = tb.paper.shape[0]
+        enc = np.array([seed002.bench_samples(c, move, n_rows)[1] for c in copies])
         header = ["k"]
         for c in cols:
             header += [f"{c} paper", f"{c} planner"]
-        header += ["board setpoint", "encoder"]
+        header += ["board setpoint (planned)", "encoder"]
         rows = []
-        for i in range(tb.paper.shape[0]):
+        for i in range(n_rows):
             row = [str(i)]
             for c in range(len(cols)):
                 printed = f"{tb.paper[i, c]:.6f}".rstrip("0").rstrip(".")
                 row += [printed, f"{tb.planner[i, c]:.4f}"]
-            row += [f"{tb.bench_sp_pos[i]:.4f}", f"{tb.bench_pos[i]:.4f}"]
+            row += [f"{tb.bench_sp_pos[i]:.4f}", _pm_text(list(enc[:, i]), 4)]
             rows.append(row)
         lines += [f"### {tb.name}", ""] + _table(header, rows)
         diffs = []
         for c, name in enumerate(cols):
             d, k = tb.max_diff(c)
             diffs.append(f"{name} {d:.4g} (row {k})")
-        d_sp, k_sp, d_pos, k_pos = tb.max_bench_diff()
+        d_sp, k_sp, _, _ = tb.max_bench_diff()
         lines += [
             "Largest |planner - paper|: " + ", ".join(diffs) + ". "
             f"Largest |board setpoint - planner|: {d_sp:.2g} deg (row {k_sp}; the telemetry "
-            f"carries 1e-4 deg); largest |encoder - planner|: {d_pos:.3f} deg (row {k_pos}).",
+            "carries 1e-4 deg); largest |encoder - planner|: "
+            f"{_largest([e - tb.planner[:, 0] for e in enc], 3, ' deg')}.",
             "",
         ]
     lines += [
@@ -396,28 +489,35 @@ def _seed002(res: seed002.Seed002Result) -> list[str]:
     return lines
 
 
-def _scurve(res: scurve_extras.ScurveResult, acc_ff_a_per_dps2: float) -> list[str]:
+def _scurve(inp: ReportInputs, res: scurve_extras.ScurveResult) -> list[str]:
     header = [
-        "scenario", "duration trapezoid / S-curve (s)", "peak planned jerk trapezoid / S-curve "
-        "(deg/s³)", "peak current trapezoid / S-curve (A)", "largest measured velocity step "
-        "trapezoid / S-curve (deg/s per tick)",
+        "scenario", "duration trapezoid / S-curve (s; planned)", "peak planned jerk trapezoid "
+        "/ S-curve (deg/s³; planned)", "peak current trapezoid / S-curve (A)", "largest "
+        "measured velocity step trapezoid / S-curve (deg/s per tick)",
     ]  # fmt: skip
     rows = []
     for c in res.comparisons:
+        a, b = c.trapezoid.name, c.scurve.name
         rows.append(
             [
                 c.name,
                 f"{_f(c.duration_trapezoid_s, 2)} / {_f(c.duration_scurve_s, 2)}",
                 f"{_f(c.trapezoid.max_sp_jerk_dps3, 0)} / {_f(c.scurve.max_sp_jerk_dps3, 0)}",
-                f"{_f(c.trapezoid.peak_current_a, 2)} / {_f(c.scurve.peak_current_a, 2)}",
-                f"{_f(c.trapezoid.max_vel_step_dps, 3)} / {_f(c.scurve.max_vel_step_dps, 3)}",
+                f"{_metric(inp, a, 'peak_current_a', 2)} / {_metric(inp, b, 'peak_current_a', 2)}",
+                f"{_metric(inp, a, 'max_vel_step_dps', 3)} / "
+                f"{_metric(inp, b, 'max_vel_step_dps', 3)}",
             ]
         )
+
+    def mean_peak(m: RunMetrics) -> float:
+        vals = [x.peak_current_a for x in (inp.copy_metrics or {}).get(m.name, (m,))]
+        return statistics.fmean(vals)
+
     quick = res.fig7.time_scale != 1.0
-    max_di = max(abs(c.trapezoid.peak_current_a - c.scurve.peak_current_a) for c in res.comparisons)
+    max_di = max(abs(mean_peak(c.trapezoid) - mean_peak(c.scurve)) for c in res.comparisons)
     cases = ", ".join(
         f"{r.name}: {r.observed_case} (from {_f(r.start_vel_dps)} deg/s at "
-        f"{_f(r.start_pos_deg, 2)} deg)"
+        f"{_f(r.start_pos_deg, 2)} deg, planned)"
         for r in res.fig7.runs
     )
     return [
@@ -448,13 +548,13 @@ def _scurve(res: scurve_extras.ScurveResult, acc_ff_a_per_dps2: float) -> list[s
             else f"The peak current changes by up to {max_di:.2f} A"
         )
         + ": at 148 deg/s² the inertia needs "
-        f"{148.0 * acc_ff_a_per_dps2:.2f} A (the firmware's acceleration feed-forward), the "
+        f"{148.0 * inp.acc_ff_a_per_dps2:.2f} A (the firmware's acceleration feed-forward), the "
         "rest is friction.",
         "",
     ]
 
 
-def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
+def _lookahead(inp: ReportInputs, res: lookahead_demo.LookaheadResult) -> list[str]:
     saved_plan = res.plan_stop_each_s - res.plan_lookahead_s
     saved = (
         None
@@ -462,15 +562,22 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
         else res.done_stop_each_s - res.done_queue_s
     )
     pct = None if saved is None else 100.0 * saved / res.done_stop_each_s
+    k = res.time_scale
+    # the encoder's speed at each waypoint, per noise realisation of the queue run
+    enc = [
+        lookahead_demo.crossing_speeds(c[0], res.waypoints_deg, res.a_max_dps2, k)[1]
+        for c in _copies(inp, res.queue.name)
+    ]
     rows = []
     w = res.waypoints_deg
-    for n, (v_plan, v_board, v_meas) in enumerate(zip(
-        res.junction_speeds_dps[1:-1], res.board_speeds_dps, res.crossing_speeds_dps,
-        strict=True,
+    for n, (v_plan, v_board) in enumerate(zip(
+        res.junction_speeds_dps[1:-1], res.board_speeds_dps, strict=True,
     ), start=1):  # fmt: skip
         kind = "reversal" if (w[n] - w[n - 1]) * (w[n + 1] - w[n]) < 0 else "same direction"
-        rows.append([f"{w[n]:g} ({kind})", _f(v_plan, 2), _f(v_board, 2), _f(v_meas, 2)])
-    k = res.time_scale
+        rows.append(
+            [f"{w[n]:g} ({kind})", _f(v_plan, 2), _f(v_board, 2),
+             _pm_text([e[n - 1] for e in enc], 2)]
+        )  # fmt: skip
     return [
         "### Seed 001's waypoint program on the board's look-ahead queue",
         "",
@@ -496,13 +603,15 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
                     f"{_f(saved_plan, 2)} s",
                 ],
                 [
-                    "board: setpoint moving, first motion to rest, less the dwells (s)",
+                    "board: setpoint moving, first motion to rest, less the dwells (s; planned "
+                    "on the board)",
                     _f(res.board_motion_s, 3),
                     "",
                     "",
                 ],
                 [
-                    "measured: setpoint at rest at the last waypoint, from the first send (s)",
+                    "board: setpoint at rest at the last waypoint, from the first send (s; "
+                    "planned on the board)",
                     _f(res.done_queue_s, 2),
                     _f(res.done_stop_each_s, 2),
                     f"{_f(saved, 2)} s ({_f(pct, 0)} %)",
@@ -511,8 +620,8 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
                     "largest tracking error, setpoint − encoder (deg"
                     + (", as run" if k != 1.0 else "")
                     + ")",
-                    _f(res.max_err_queue_deg, 3),
-                    _f(res.max_err_stop_each_deg, 3),
+                    _ms(inp, res.queue.name, lookahead_demo.max_err, 3),
+                    _ms(inp, res.stop_each.name, lookahead_demo.max_err, 3),
                     "",
                 ],
             ],
@@ -526,7 +635,12 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
         + "):",
         "",
         *_table(
-            ["waypoint (deg)", "PC-side plan (deg/s)", "board setpoint (deg/s)", "encoder (deg/s)"],
+            [
+                "waypoint (deg)",
+                "PC-side plan (deg/s)",
+                "board setpoint (deg/s; planned)",
+                "encoder (deg/s)",
+            ],
             rows,
         ),  # fmt: skip
         (
@@ -540,12 +654,12 @@ def _lookahead(res: lookahead_demo.LookaheadResult) -> list[str]:
     ]
 
 
-def _programs(res: programs_demo.ProgramsResult) -> list[str]:
+def _programs(inp: ReportInputs, res: programs_demo.ProgramsResult) -> list[str]:
     w = res.waypoints_deg
+    enc = [programs_demo.junction_speeds(c[0], w)[1] for c in _copies(inp, res.queue.name)]
     rows = []
-    for k, (v_plan, v_board, v_meas) in enumerate(zip(
-        res.planned_junction_dps, res.board_junction_dps, res.measured_junction_dps,
-        strict=True,
+    for k, (v_plan, v_board) in enumerate(zip(
+        res.planned_junction_dps, res.board_junction_dps, strict=True,
     ), start=1):  # fmt: skip
         kind = "reversal" if (w[k] - w[k - 1]) * (w[k + 1] - w[k]) < 0 else "same direction"
         rows.append(
@@ -554,7 +668,7 @@ def _programs(res: programs_demo.ProgramsResult) -> list[str]:
                 f"{res.block_v_dps[k - 1]:g} → {res.block_v_dps[k]:g}",
                 _f(v_plan, 2),
                 _f(v_board, 2),
-                _f(v_meas, 2),
+                _pm_text([e[k - 1] for e in enc], 2),
             ]
         )
     saved = (None if res.done_queue_s is None or res.done_stop_each_s is None
@@ -577,7 +691,7 @@ def _programs(res: programs_demo.ProgramsResult) -> list[str]:
                 "junction (deg)",
                 "speed limits (deg/s)",
                 "PC-side plan (deg/s)",
-                "board setpoint (deg/s)",
+                "board setpoint (deg/s; planned)",
                 "encoder (deg/s)",
             ],
             rows,
@@ -597,15 +711,15 @@ def _programs(res: programs_demo.ProgramsResult) -> list[str]:
                     _f(res.plan_stop_each_s - res.plan_s, 3),
                 ],
                 [
-                    "measured: setpoint at rest at home (s)",
+                    "board: setpoint at rest at home (s; planned on the board)",
                     _f(res.done_queue_s, 3),
                     _f(res.done_stop_each_s, 3),
                     _f(saved, 3),
                 ],
                 [
                     "largest tracking error while moving (deg)",
-                    _f(res.max_err_queue_deg, 3),
-                    _f(res.max_err_stop_each_deg, 3),
+                    _ms(inp, res.queue.name, programs_demo.max_err, 3),
+                    _ms(inp, res.stop_each.name, programs_demo.max_err, 3),
                     "",
                 ],
             ],
@@ -621,13 +735,19 @@ def _programs(res: programs_demo.ProgramsResult) -> list[str]:
         "",
     ]
     trows = []
-    for t in res.tables:
-        d_sp, k_sp, d_pos, k_pos = t.max_bench_diff()
-        trows.append([t.name, f"{d_sp:.2g} (row {k_sp})", f"{d_pos:.3f} (row {k_pos})"])
+    stream = [c[0] for c in _copies(inp, res.stream.name)]
+    for t, (t_s, start) in zip(res.tables, res.stream_starts, strict=True):
+        d_sp, k_sp, _, _ = t.max_bench_diff()
+        n = len(t.planner)
+        enc = [
+            c.pos_deg[programs_demo.stream_rows(c, t_s, n)] - start - t.planner[:, 0]
+            for c in stream
+        ]
+        trows.append([t.name, f"{d_sp:.2g} (row {k_sp})", _largest(enc, 3)])
     lines += _table(
         [
             "",
-            "largest difference, board setpoint − table (deg)",
+            "largest difference, board setpoint − table (deg; planned)",
             "largest difference, encoder − table (deg)",
         ],
         trows,
@@ -654,7 +774,10 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
         'Every curve and number in this report (except the "true" current, section 3\'s '
         "planner-only table and the planner columns of section 6) is what the simulated "
         f"PC decoded from the board's `Telemetry` frames on the emulated UART, as in the paper "
-        f"where the PC plotted what the board sent. At {inp.baud} baud (8N1) one "
+        "where the PC plotted what the board sent; the error bars' other noise realisations "
+        "of a run (section 4) are read from the simulator's log as their frames would carry "
+        "them (the same function gives the decoded frames value for value on the first). "
+        f"At {inp.baud} baud (8N1) one "
         f"{frame.TELEMETRY_FRAME_BYTES}-byte frame per {1000 / inp.tick_hz:g} ms tick is "
         f"{bytes_per_s:,.0f} B/s, {100 * bytes_per_s / line:.1f} % of the line "
         f"({line:,.0f} B/s): no decimation, one frame per tick. Over the runs of Fig. 6-8 the PC "
@@ -692,6 +815,48 @@ def _replies(inp: ReportInputs) -> list[str]:
         "",
     ]
     return lines
+
+
+def setpoint_differs(inp: ReportInputs) -> list[str]:
+    """The runs whose board setpoint is not the same in every noise realisation (none
+    expected: the board plans from its commanded state, which the noise does not reach)."""
+    out = []
+    for name, copies in (inp.noise_traces or {}).items():
+        first = copies[0]
+        if any(
+            not (np.array_equal(c.sp_pos_deg, first.sp_pos_deg)
+                 and np.array_equal(c.sp_vel_dps, first.sp_vel_dps))
+            for c in copies[1:]
+        ):  # fmt: skip
+            out.append(name)
+    return out
+
+
+def _error_bars(inp: ReportInputs) -> list[str]:
+    copies = {len(c) for c in (inp.noise_traces or {}).values()}
+    if not copies:
+        return ["**No noise realisations were run: the numbers below are single runs.**", ""]
+    n = "/".join(str(c) for c in sorted(copies))
+    differs = setpoint_differs(inp)
+    exact = (
+        "a planned value (the planner's, or the board's setpoint, which the noise does not "
+        "reach: it is the same in every realisation of every run)"
+        if not differs
+        else "a planned value (the planner's, or the board's setpoint; **warning: the "
+        "setpoint differs between noise realisations in " + ", ".join(differs) + "**)"
+    )
+    return [
+        f"**Error bars** (in every section): each run went through the simulator as one "
+        f"batch of {n} encoder-noise realisations (every member of a batch draws its own "
+        "noise; the PC decodes member 0's telemetry, the others are read from the log as "
+        "their telemetry frames would carry them, to the wire's steps). A measured number is "
+        "printed as the mean ± the standard deviation over the realisations; ± 0 means "
+        "measured with no spread (e.g. a time on the 2 ms tick grid). A number without ± is "
+        f"exact by construction, and its column or sentence says which kind: {exact}, the "
+        "tick a command was applied in, or a count. Section 8's variants are single "
+        "realisations with the nominal member's spread as their error bar (said there).",
+        "",
+    ]
 
 
 def write_report(inp: ReportInputs, path) -> None:
@@ -737,19 +902,16 @@ def write_report(inp: ReportInputs, path) -> None:
         "",
     ]
     lines += _consistency(inp)
-    runs: list[tuple[RunMetrics, float]] = [
-        (inp.fig6.step_metrics, 1.0),
-        (inp.fig6.planned_metrics, 1.0),
-    ]
-    runs += [(r.metrics, 1.0) for r in inp.fig7.runs]
-    runs += [(inp.fig8.metrics, 1.0)]
+    runs = [inp.fig6.step_metrics, inp.fig6.planned_metrics]
+    runs += [r.metrics for r in inp.fig7.runs]
+    runs += [inp.fig8.metrics]
     if inp.scurve is not None:
-        runs += [(r.metrics, 1.0) for r in inp.scurve.fig7.runs]
-        runs += [(inp.scurve.fig8.metrics, 1.0)]
+        runs += [r.metrics for r in inp.scurve.fig7.runs]
+        runs += [inp.scurve.fig8.metrics]
     lines += [
         "## 4. Metrics per run",
         "",
-        'From the decoded telemetry (Fig. 7 runs from the interrupt on). "Tracking error" is '
+        'From the telemetry (Fig. 7 runs from the interrupt on). "Tracking error" is '
         "setpoint minus encoder position (for the run without planning it is the whole "
         "step)."
         + (
@@ -760,35 +922,23 @@ def write_report(inp: ReportInputs, path) -> None:
             else ""
         ),
         "",
+        *_error_bars(inp),
     ]
-    if inp.noise:
-        copies = inp.sensitivity.noise_copies if inp.sensitivity is not None else 0
-        lines += [
-            "± is the standard deviation over "
-            + (f"{copies} " if copies else "")
-            + "encoder-noise realisations of the same run (one batch; measured on its log, "
-            "not on telemetry, so the decoded current is the unrounded reading), where the "
-            "run has them (Fig. 6-8 and the S-curve runs, here and in sections 1-2); the "
-            "values are the decoded run's. Seed 002's tables (section 6), the look-ahead and "
-            "the program runs (section 7) and the times of Fig. 6's velocity jumps are single "
-            "realisations.",
-            "",
-        ]
-    lines += _metrics_table(runs, inp.noise)
+    lines += _metrics_table(inp, runs)
     lines += _replan_steps(inp)
     traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
     traces += [r.trace for r in inp.fig7.runs]
     lines += _link(inp, traces)
     if inp.seed002 is not None:
-        lines += _seed002(inp.seed002)
+        lines += _seed002(inp, inp.seed002)
     if inp.scurve is not None or inp.lookahead is not None or inp.programs is not None:
         lines += ["## 7. Beyond the paper", ""]
     if inp.scurve is not None:
-        lines += _scurve(inp.scurve, inp.acc_ff_a_per_dps2)
+        lines += _scurve(inp, inp.scurve)
     if inp.lookahead is not None:
-        lines += _lookahead(inp.lookahead)
+        lines += _lookahead(inp, inp.lookahead)
     if inp.programs is not None:
-        lines += _programs(inp.programs)
+        lines += _programs(inp, inp.programs)
     if inp.sensitivity is not None:
         lines += band.report_lines(inp.sensitivity, section=8)
     with open(path, "w", encoding="utf-8") as fh:

@@ -15,7 +15,14 @@ import numpy as np
 from planner import sample_fixed_period, scurve_from_periods, trapezoid_from_periods
 from sim.reproduce.experiments import Runner, Trace, load
 
-__all__ = ["PAPER_TABLE1", "PAPER_TABLE2", "Seed002Result", "TableComparison", "run"]
+__all__ = [
+    "PAPER_TABLE1",
+    "PAPER_TABLE2",
+    "Seed002Result",
+    "TableComparison",
+    "bench_samples",
+    "run",
+]
 
 # Seed 002, Table 1 (trapezoid): position, velocity, acceleration per 150 ms period, as
 # printed (mm, mm/s, mm/s^2).
@@ -74,7 +81,9 @@ class Seed002Result:
     trace: Trace
 
 
-def _bench_samples(trace: Trace, move: int, rows: int) -> tuple[np.ndarray, np.ndarray]:
+def bench_samples(trace: Trace, move: int, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """The board's setpoint and encoder position every 150 ms from the start of ``move``
+    (an index into the trace's moves), ``rows`` of each, relative to the start."""
     t0 = trace.command_t_s[move]
     i0 = trace.index_at(t0)
     start = trace.sp_pos_deg[i0]
@@ -96,8 +105,8 @@ def run(runner: Runner) -> Seed002Result:
     sc = sample_fixed_period(scurve_prof, PERIOD_S)
     t1 = np.array(PAPER_TABLE1, dtype=float)
     t2 = np.array(PAPER_TABLE2, dtype=float)
-    sp1, pos1 = _bench_samples(trace, 0, len(t1))
-    sp2, pos2 = _bench_samples(trace, 1, len(t2))
+    sp1, pos1 = bench_samples(trace, 0, len(t1))
+    sp2, pos2 = bench_samples(trace, 1, len(t2))
     table1 = TableComparison(
         "Table 1 (trapezoid)",
         ("position", "velocity", "acceleration"),

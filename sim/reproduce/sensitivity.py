@@ -124,13 +124,12 @@ def fig6_metrics(
 def noise_traces(name: str, exp: Any, copies: int, seed: int = 0) -> list[Any]:
     """The run ``exp`` in ``copies`` noise realisations (one batch: every member draws its
     own encoder noise), each as the :class:`~sim.reproduce.experiments.Trace` its telemetry
-    would give (built from the log: a batch sends the telemetry of member 0 only)."""
-    from sim.reproduce.experiments import trace_from_log
+    would give (``experiments.run_trace``; the reproduction's runs are these)."""
+    from sim.reproduce.experiments import run_trace
 
     if copies < 2:
         raise ValueError(f"copies = {copies!r}: need at least 2 for a spread")
-    result = run(exp, batch=copies, seed=seed, overrides={"telemetry.decimation": 0})
-    return [trace_from_log(name, exp, result.log.member(k)) for k in range(copies)]
+    return list(run_trace(name, exp, seed=seed, copies=copies)[1])
 
 
 def metric_spread(rows: Sequence[Any]) -> dict[str, tuple[float, float]]:

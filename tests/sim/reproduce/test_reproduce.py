@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import re
 
 import numpy as np
 import pytest
@@ -319,29 +320,165 @@ def test_report_states_which_effects_matter_per_figure(output):
     assert max(st.values("overshoot (deg)", retuned)) < max(st.values("overshoot (deg)", fixed))
 
 
+def test_every_run_is_a_batch_of_noise_realisations_and_copy_0_is_the_decoded_run(output):
+    """Each run went through the simulator once, as a batch of noise copies; the copies are
+    read from the log as the telemetry would carry them: member 0's is the decoded trace,
+    value for value, and the board's setpoint is the same in every copy (it is planned)."""
+    from sim.reproduce.report import setpoint_differs
+
+    inp = output.inputs
+    decoded = {t.name: t for t in _all_decoded(inp)}
+    assert set(decoded) == set(inp.noise_traces)
+    fields = ("t_s", "sp_pos_deg", "sp_vel_dps", "pos_deg", "vel_dps", "current_a", "duty",
+              "state", "fault")  # fmt: skip
+    for name, copies in inp.noise_traces.items():
+        assert len(copies) == 3, name
+        for f in fields:
+            np.testing.assert_array_equal(getattr(copies[0], f), getattr(decoded[name], f))
+        # the copies drew their own noise
+        assert not np.array_equal(copies[0].pos_deg, copies[1].pos_deg), name
+    assert setpoint_differs(inp) == []
+
+
+def _all_decoded(inp):
+    traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace, inp.seed002.trace]
+    traces += [r.trace for r in inp.fig7.runs] + [r.trace for r in inp.scurve.fig7.runs]
+    traces += [inp.scurve.fig8.trace, inp.lookahead.queue, inp.lookahead.stop_each]
+    traces += [inp.programs.queue, inp.programs.stop_each, inp.programs.stream]
+    return traces
+
+
+def _sections(text: str) -> dict[str, str]:
+    """REPORT.md's numbered sections by number ("1" .. "8")."""
+    parts = re.split(r"^## (\d)\. ", text, flags=re.M)
+    return {parts[k]: parts[k + 1] for k in range(1, len(parts) - 1, 2)}
+
+
+def _tables(section: str) -> list[list[list[str]]]:
+    """Every markdown table of ``section``: rows of cells, the header first."""
+    tables, rows = [], []
+    for line in section.splitlines() + [""]:
+        if line.startswith("|"):
+            cells = [c.strip() for c in line.strip().strip("|").split(" | ")]
+            if not all(set(c) <= set("-") for c in cells):
+                rows.append(cells)
+        elif rows:
+            tables.append(rows)
+            rows = []
+    return tables
+
+
+# A number without ± must say why it is exact: in its column's header, its row's label, the
+# table's first header or its own clause (the report's rule, section 4).
+EXACT_WORDS = ("paper", "plan", "tick after the command", "count", "limit")
+
+
+def test_every_measured_number_in_the_report_tables_carries_an_error_bar(output):
+    """Sections 1-7: every table cell with a number is mean ± sd, or its column header, its
+    row label, its table's first header or its clause says it is exact (planned, the
+    paper's, a count)."""
+    text = (output.out_dir / "REPORT.md").read_text(encoding="utf-8")
+    sections = _sections(text)
+    checked = measured = 0
+    for number in "1234567":
+        for table in _tables(sections[number]):
+            header = table[0]
+            for row in table[1:]:
+                for col, cell in enumerate(row):
+                    name = header[col]
+                    if col == 0 or name.startswith("why they differ"):
+                        continue  # labels; the reasons' numbers are checked below
+                    if any(w in name or w in row[0] or w in header[0] for w in EXACT_WORDS):
+                        continue
+                    for clause in re.split(r"[;,(]\s", cell):
+                        if not re.search(r"\d", clause):
+                            continue
+                        checked += 1
+                        if "±" in clause:
+                            measured += 1
+                        else:
+                            assert any(w in clause for w in EXACT_WORDS) or re.fullmatch(
+                                r"case \w.*|\d+ of \d+\)?|reaches \d+ deg at .*", clause
+                            ), (number, name, row[0], clause)
+    assert measured > 100 and checked >= measured  # not vacuous: seed 002 alone has 47
+    # section 2's reasons: the measured times carry their error bars too
+    why = [r[3] for t in _tables(sections["2"]) for r in t[1:] if "reaches the target" in r[0]]
+    assert len(why) == 1 and why[0].count("±") == 3
+    # section 1's measured numbers (prose)
+    assert sections["1"].count("±") >= 5
+
+
 def test_report_metrics_carry_noise_error_bars(output):
-    """Sections 1, 2 and 4: the paper runs' metrics with the standard deviation over the
-    same run in noise realisations (one batch each), computed from those runs."""
+    """Sections 1, 2, 4, 6 and 7: a measured number is the mean ± the standard deviation of
+    the same number computed on each noise realisation of its run (computed here from the
+    runs)."""
     import statistics
 
+    from sim.reproduce import lookahead_demo, programs_demo, seed002
     from sim.reproduce.metrics import measure
+    from sim.reproduce.report import _pm_text
 
     inp = output.inputs
     text = (output.out_dir / "REPORT.md").read_text(encoding="utf-8")
-    names = [inp.fig6.step.name, inp.fig6.planned.name, inp.fig8.trace.name]
-    names += [r.trace.name for r in inp.fig7.runs]
-    for name in names:
-        assert len(inp.noise_traces[name]) == 3 and name in inp.noise
+
+    def pm(vals, digits):
+        # the report's format, fed with values computed here
+        return _pm_text(vals, digits)
+
     step = inp.noise_traces[inp.fig6.step.name]
     over = [measure(t, 5.0).overshoot_deg for t in step]
-    # the copies are the same experiment in other noise realisations
     assert all(abs(o - inp.fig6.step_metrics.overshoot_deg) < 0.5 for o in over)
     assert statistics.stdev(over) > 0.0
-    assert f"{inp.fig6.step_metrics.overshoot_deg:,.3f} ± {statistics.stdev(over):.2g}" in text
-    # Table 1's measured velocity at each replan (section 2)
+    assert f"| {pm(over, 3)} |" in text  # section 4
+    assert f"{pm(over, 1)} deg (" in text  # section 2
+    # section 1: the time to 99 % of v_max
+    t99 = [fig6.time_to_speed_s(t, 0.99 * 990.0) for t in step]
+    assert f"in {pm(t99, 3)} s (mean" in text
+    # section 2: Table 1's measured velocity at each replan
     k = inp.fig8.time_scale
-    for n, row in enumerate(inp.fig8.rows[1:], start=1):
+    for n in range(1, len(inp.fig8.rows)):
         vals = [
             float(t.vel_dps[t.index_at(t.command_t_s[n])]) * k for t in inp.noise_traces["fig8"]
         ]
-        assert f"({row.sim_vel_dps:,.1f} ± {statistics.stdev(vals):.2g} measured)" in text
+        assert f"({pm(vals, 1)} measured)" in text
+    # section 6: the encoder at every row of seed 002's Table 1, from the run's copies
+    copies = inp.noise_traces[inp.seed002.trace.name]
+    table = inp.seed002.tables[0]
+    enc = np.array([seed002.bench_samples(c, 0, len(table.paper))[1] for c in copies])
+    assert np.std(enc, axis=0).max() > 0.0
+    for i in range(len(table.paper)):
+        assert f"| {table.bench_sp_pos[i]:.4f} | {pm(list(enc[:, i]), 4)} |" in text
+    # section 7: the S-curve's peak current, the look-ahead encoder speeds, the scan's
+    # tracking error, the streamed tables' encoder error
+    sc = inp.scurve.fig8.trace.name
+    peaks = [measure(t, 5.0).peak_current_a for t in inp.noise_traces[sc]]
+    assert f" / {pm(peaks, 2)} |" in text
+    la = inp.lookahead
+    speeds = [
+        lookahead_demo.crossing_speeds(c, la.waypoints_deg, la.a_max_dps2, la.time_scale)[1]
+        for c in inp.noise_traces[la.queue.name]
+    ]
+    for n in range(len(speeds[0])):
+        assert f"| {pm([s[n] for s in speeds], 2)} |" in text
+    pg = inp.programs
+    errs = [programs_demo.max_err(c) for c in inp.noise_traces[pg.queue.name]]
+    assert f"| largest tracking error while moving (deg) | {pm(errs, 3)} |" in text
+    stream = inp.noise_traces[pg.stream.name]
+    for t, (t_s, start) in zip(pg.tables, pg.stream_starts, strict=True):
+        n = len(t.planner)
+        worst = [
+            float(np.max(np.abs(c.pos_deg[programs_demo.stream_rows(c, t_s, n)] - start
+                                - t.planner[:, 0])))
+            for c in stream
+        ]  # fmt: skip
+        assert f"| {pm(worst, 3)} (row" in text
+
+
+def test_the_report_format_of_a_measured_number():
+    from sim.reproduce.report import _pm_text
+
+    assert _pm_text([1.0, 2.0, 3.0], 2) == "2.00 ± 1.0"
+    assert _pm_text([5.0, 5.0], 1) == "5.0 ± 0"  # measured, no spread
+    assert _pm_text([0.0, 1500.0], 0) == "750 ± 1,100"  # no exponent
+    assert _pm_text([4.0], 1) == "4.0 (one realisation)"
+    assert _pm_text([], 1) == "-"
