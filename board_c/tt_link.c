@@ -476,6 +476,7 @@ size_t tt_encode_status(uint8_t *out, const tt_status *m)
     put_u32(out, &at, (uint32_t)m->target);
     put_u32(out, &at, m->fault_flags);
     put_u16(out, &at, m->session);
+    put_u32(out, &at, m->sense_offset);
     return at;
 }
 

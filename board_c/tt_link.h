@@ -51,7 +51,7 @@ enum tt_nack_code {
     TT_UNSTABLE_GAINS = 5, TT_FAULT_ACTIVE = 6, TT_DISABLED = 7, TT_NOT_A_COMMAND = 8,
     TT_NO_SESSION = 9, TT_STALE_SESSION = 10, TT_UNSUPPORTED_VERSION = 11, TT_TOO_HIGH = 12,
     TT_TOO_LOW = 13, TT_BUSY = 14, TT_TRAVEL = 15,
-    TT_QUEUE_FULL = 16, TT_NO_STREAM = 17
+    TT_QUEUE_FULL = 16, TT_NO_STREAM = 17, TT_SENSE_OFFSET = 18
 };
 
 /* ------------------------------------------------------------------ checks and framing */
@@ -192,6 +192,7 @@ typedef struct {
     int32_t pos, vel, target;
     uint32_t fault_flags;
     uint16_t session;
+    uint32_t sense_offset; /* appended: f32 bits, A */
 } tt_status;
 typedef struct {
     uint32_t tick;

@@ -31,11 +31,15 @@ from typing import Any
 
 import numpy as np
 
-from firmware_model import as5048, programs, safety, stream
+from firmware_model import as5048, programs, safety, sense_calibration, stream
 from firmware_model import tick as ftick
 from firmware_model.laws import Law
 from firmware_model.laws.layout import (
     C_BUS_ADC,
+    C_CAL_LEFT,
+    C_CAL_SUM_A,
+    C_CAL_SUM_B,
+    C_SENSE_OFFSET,
     P_DERATE,
     P_DUTY,
     P_IMEAS,
@@ -141,6 +145,8 @@ COMMAND_MASK = sum(1 << int(cls.MSG_TYPE) for cls in COMMAND_TYPES)
 _COMMAND_CLASSES = frozenset(COMMAND_TYPES)
 # A refusal: (code, refused field name or None, limit in the field's unit).
 _Refusal = tuple[NackCode, str | None, float]
+# A command answered later (a SetEnable calibrating the IS offset), by _apply's handlers.
+_PENDING: Any = object()
 _MODES = {"hold": ftick.MODE_HOLD, "plan": ftick.MODE_PLAN, "step": ftick.MODE_STEP}
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
@@ -298,6 +304,10 @@ class Firmware:
         self._thermal_est[:] = float(params.safety.thermal_ambient_c)
         # The bus voltage screen: current-loop readings in a row beyond a threshold.
         self._bus_ticks = np.zeros(n, dtype=np.int64)
+        # The IS-offset calibration at enable (firmware_model.sense_calibration): the members
+        # calibrating, and the SetEnable answered when they are done (None: the power-up's).
+        self._calibrating = np.zeros(n, dtype=bool)
+        self._cal_command: SetEnable | None = None
         self._sf = (
             self._mismatch_deg, self._r_ohm, self._emf_v_per_dps, self._brake_ticks,
             self._diag_ticks, self._diag_errors, self.sensor_mismatch_peak_deg,
@@ -354,7 +364,14 @@ class Firmware:
         fi[ftick.FI_BUS_SAMPLES] = s.bus_voltage_samples if s.bus_voltage_check else 0
         fs[ftick.FS_MM_V_PER_BUS] = v_per_count if s.sensor_mismatch_measured_bus else 0.0
         fs[ftick.FS_MM_SENSE_SPREAD] = s.sensor_mismatch_sense_spread
-        fs[ftick.FS_MM_OFFSET_A] = s.sensor_mismatch_offset_counts * params.current.a_per_adc
+        # With the offset calibrated at every enable (the axis never drives before), the
+        # back-EMF check allows for what the calibration leaves, not the chip's spread.
+        offset_counts = (
+            s.sensor_mismatch_calibrated_offset_counts
+            if params.current.sense_calibration
+            else s.sensor_mismatch_offset_counts
+        )
+        fs[ftick.FS_MM_OFFSET_A] = offset_counts * params.current.a_per_adc
         fs[ftick.FS_MM_R_SPREAD] = s.sensor_mismatch_r_spread
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
@@ -603,8 +620,8 @@ class Firmware:
     def _pos0(self) -> float:
         return float(self.law.pos_deg[0])
 
-    def _enable(self) -> None:
-        ok = self._fault == 0
+    def _enable(self, only: Any = True) -> None:
+        ok = (self._fault == 0) & only
         self._enabled = ok.copy()
         self._brake_ticks[ok] = 0  # the loops take over from the brake
         self._flags_version += 1
@@ -614,6 +631,83 @@ class Firmware:
         self._set_position_window()
         self._hold_here()
         self._moved = False
+        if self.params.current.sense_calibration:
+            self._start_calibration(ok)
+
+    # ------------------------------------------------------------------ IS-offset calibration
+    def _start_calibration(self, mask: Any) -> None:
+        """Both high sides on for the members in ``mask`` (they are enabled, their control
+        output held at zero) for ``sense_calibration_samples`` current-loop periods and the
+        one in which the bridge switches (``firmware_model.sense_calibration``)."""
+        c = self.law.C
+        c[C_CAL_LEFT, mask] = self.params.current.sense_calibration_samples + 1
+        c[C_CAL_SUM_A, mask] = 0
+        c[C_CAL_SUM_B, mask] = 0
+        self._calibrating |= mask
+
+    def _stop_calibration(self, mask: Any, code: NackCode) -> None:
+        """The members in ``mask`` stop calibrating (disabled, tripped): their bridge leaves
+        the both-high-sides state; a pending ``SetEnable`` with nobody left calibrating is
+        refused with ``code``."""
+        mask = np.asarray(mask, dtype=bool) & self._calibrating
+        if not mask.any():
+            return
+        self.law.C[C_CAL_LEFT, mask] = 0
+        self._calibrating &= ~mask
+        if not self._calibrating.any():
+            self._answer_enable(code, 0.0)
+
+    def _calibration_done(self) -> None:
+        """The members whose calibration ended this period (``calibration_step`` said so):
+        keep the offset of those that passed (``C_SENSE_OFFSET``), disable the others, and
+        answer the ``SetEnable`` once no member calibrates any more: ACK if one passed, else
+        NACK ``BUSY`` (the axis turned; limit: the speed bound in deg/s) or ``SENSE_OFFSET``
+        (the offset implausible; limit: the ceiling, A)."""
+        c = self.law.C
+        done = self._calibrating & (c[C_CAL_LEFT] == 0)
+        if not done.any():
+            return
+        cur = self.params.current
+        offset, reason = sense_calibration.judge(
+            c[C_CAL_SUM_A], c[C_CAL_SUM_B], cur.sense_calibration_samples,
+            cur.sense_calibration_pin_counts, cur.sense_offset_max_counts,
+        )  # fmt: skip
+        good = done & (reason == 0)
+        c[C_SENSE_OFFSET, good] = offset[good]
+        bad = done & (reason != 0)
+        self._calibrating &= ~done
+        if bad.any():
+            self._enabled[bad] = False
+            self._flags_version += 1
+            self._enabled_s = bool(self._enabled[0])
+            self.law.reset_control(bad)
+            if not self._enabled.any():
+                self._hold_here()
+        if self._calibrating.any():
+            return
+        first = int(np.flatnonzero(done)[0])
+        if good.any():
+            self._answer_enable()
+        elif reason[first] == sense_calibration.MOVED:
+            self._answer_enable(NackCode.BUSY, cur.sense_calibration_max_speed_dps)
+        else:
+            self._answer_enable(NackCode.SENSE_OFFSET,
+                                cur.sense_offset_max_counts * cur.a_per_adc)  # fmt: skip
+
+    def _answer_enable(self, code: NackCode | None = None, limit: float = 0.0) -> None:
+        """The answer of the ``SetEnable`` that started the calibration (none for the
+        power-up's): ACK, or NACK ``code`` with ``limit``; a retry of it now gets this."""
+        msg, self._cal_command = self._cal_command, None
+        if msg is None:
+            return
+        if code is None:
+            reply: Ack | Nack = Ack(cmd_id=msg.cmd_id, msg_type=int(msg.MSG_TYPE))
+            self._counts["commands_applied"] += 1
+        else:
+            reply = self._nack(msg, code, None, limit)
+        if self._last_cmd is msg:
+            self._last_reply = reply
+        self._queue(reply)
 
     def _set_position_window(self) -> None:
         """The hard position trip's window: the travel widened by the margin, and widened
@@ -628,6 +722,7 @@ class Firmware:
         self._pos_lo_deg, self._pos_hi_deg = float(lo - margin), float(hi + margin)
 
     def _disable(self) -> None:
+        self._stop_calibration(self._calibrating, NackCode.BUSY)
         self._enabled[:] = False
         self._flags_version += 1
         self._enabled_s = False
@@ -717,7 +812,10 @@ class Firmware:
     def _current_trips(self) -> None:
         """The trips of the current-loop screens (``firmware_model.tick.current_stage``):
         over-current, and the bus over/under-voltage (over if the reading is above the
-        over threshold, else under), with the measured bus in volts as the value."""
+        over threshold, else under), with the measured bus in volts as the value; and the
+        end of an IS-offset calibration."""
+        if self._calibrating.any():
+            self._calibration_done()
         self._trip(
             self._oc_ticks >= self._oc_samples, Fault.OVER_CURRENT,
             self.law.current_meas_a.copy(), self._oc_thr_a,
@@ -740,6 +838,7 @@ class Firmware:
         if not mask.any():
             return
         self._fault[mask] = int(fault)
+        self._stop_calibration(mask, NackCode.FAULT_ACTIVE)
         flag = int(FAULT_FLAG[fault])
         self._flags[mask] |= flag
         self._enabled[mask] = False
@@ -850,7 +949,8 @@ class Firmware:
             # A retry is the same command again: same type and payload (cmd_id included).
             if msg == self._last_cmd:
                 self._counts["duplicates"] += 1
-                self._queue(self._last_reply)
+                if self._last_reply is not _PENDING:
+                    self._queue(self._last_reply)
                 return
             # time's bookkeeping first (a stream that ran dry), so that a refused command
             # changes nothing
@@ -859,7 +959,8 @@ class Firmware:
             self._last_cmd, self._last_reply = msg, reply
             if isinstance(reply, Ack):
                 self._counts["commands_applied"] += 1
-            self._queue(reply)
+            if reply is not _PENDING:  # (a SetEnable calibrating: answered when done)
+                self._queue(reply)
             return
         self._queue(self._query(msg))
 
@@ -901,6 +1002,7 @@ class Firmware:
                 vel_dps=safety.wire_pos(float(self.law.vel_dps[0])),
                 target_deg=safety.wire_pos(self._target_deg if self._moved else self.sp_pos_deg),
                 fault_flags=int(self._flags[0]), session=self.session,
+                sense_offset_a=float(self.law.C[C_SENSE_OFFSET, 0]) * self.law.a_per_adc,
             )  # fmt: skip
         if isinstance(msg, GetGains):
             kp_name, ki_name = _LOOP_GAINS[Loop(msg.loop)]
@@ -989,6 +1091,8 @@ class Firmware:
             Jog: self._cmd_jog,
         }[type(msg)]
         refusal = handler(msg)
+        if refusal is _PENDING:
+            return _PENDING
         if refusal is not None:
             return self._nack(msg, *refusal)
         if isinstance(msg, QueueSegment | QueueControl):
@@ -1437,6 +1541,16 @@ class Firmware:
                 return NackCode.FAULT_ACTIVE, None, 0.0
             if np.array_equal(self._enabled, self._fault == 0):
                 return None  # already enabled: the motion in progress goes on undisturbed
+            cur = self.params.current
+            if cur.sense_calibration:
+                # The offset is measured with the motor at rest: a turning motor drives a
+                # current around the both-high-sides loop.
+                still = np.abs(self.law.vel_dps) <= cur.sense_calibration_max_speed_dps
+                if not (still & (self._fault == 0)).any():
+                    return NackCode.BUSY, None, cur.sense_calibration_max_speed_dps
+                self._enable(still)
+                self._cal_command = m
+                return _PENDING
             self._enable()
         else:
             self._disable()

@@ -80,6 +80,7 @@ KERNEL_SOURCES = (
     "firmware_model/laws/layout.py",
     "firmware_model/params.py",
     "firmware_model/safety.py",
+    "firmware_model/sense_calibration.py",
     "firmware_model/thermal.py",
     "firmware_model/tick.py",
     "firmware_model/units.py",

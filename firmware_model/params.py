@@ -226,6 +226,13 @@ class CurrentLoopGains(_Checked):
     reference as the current (see docs/model.md, "The current loop").
     ``sense_offset_counts``: the IS pin's offset as calibrated (the reading with the high
     side on and no current), subtracted from every reading before anything else.
+    ``sense_calibration``: measure that offset at every enable instead
+    (``firmware_model.sense_calibration``): both high sides on (no voltage across the
+    motor, no current at rest) for ``sense_calibration_samples`` current-loop periods, the
+    two IS pins read in turn and averaged; refused (the enable NACKed) if the axis turns
+    faster than ``sense_calibration_max_speed_dps``, the two pins' means differ by more
+    than ``sense_calibration_pin_counts`` (a loop current: the motor turns) or the offset is
+    above ``sense_offset_max_counts`` (implausible: beyond the chip's datasheet maximum).
 
     The bus voltage comes in on a second ADC channel through a divider of
     ``bus_divider_ratio``. ``bus_compensation``: the duty is the voltage over the *measured*
@@ -249,10 +256,22 @@ class CurrentLoopGains(_Checked):
     adc_bits: int = _f(12, _irng(8, 16))
     sense_floor_counts: int = _f(2, _irng(0, 100))
     sense_offset_counts: int = _f(0, _irng(0, 4095))
+    sense_calibration: bool = _f(False, _boolean)
+    sense_calibration_samples: int = _f(16, _irng(2, 1000))
+    sense_calibration_max_speed_dps: float = _f(1.0, _rng(0.0, 1e4))
+    sense_calibration_pin_counts: int = _f(8, _irng(0, 4095))
+    sense_offset_max_counts: int = _f(248, _irng(0, 4095))
     bus_divider_ratio: float = _f(11.0, _rng(1.0, 1000.0))
     bus_compensation: bool = _f(False, _boolean)
     regen_bus_current_limit_a: float = _f(0.0, _rng(0.0, 100.0))
     bus_hold_v: float = _f(27.8, _rng(1.0, 100.0))
+
+    def _check_relations(self) -> None:
+        if self.sense_calibration_samples % 2:
+            _fail(
+                "sense_calibration_samples", self.sense_calibration_samples,
+                "must be even (half of the readings from each IS pin)",
+            )  # fmt: skip
 
     @property
     def v_per_bus_adc(self) -> float:
@@ -368,7 +387,10 @@ class SafetyParams(_Checked):
             k_ILIS relative to ``[controller.current] sense_ratio`` within ``1 ±`` the
             spread (0.65: the BTN7971's 3k-14k around 8.5k, no gain calibration), the IS
             reading's offset left after ``sense_offset_counts`` within ± this many counts
-            (62: 50 uA through the 1 kOhm sense resistor), the winding's resistance within
+            (62: 50 uA through the 1 kOhm sense resistor; with ``[controller.current]
+            sense_calibration`` ``sensor_mismatch_calibrated_offset_counts`` instead, what
+            the calibration leaves: its quantisation and the ADC noise of its mean), the
+            winding's resistance within
             ``resistance_ohm * (1 ±`` the spread), raised by the thermal protection's
             estimated rise since power-up when that is on.
         encoder_diag_ticks: the AS5048 reports an error (SPI parity, EF, CORDIC overflow,
@@ -417,6 +439,7 @@ class SafetyParams(_Checked):
     sensor_mismatch_measured_bus: bool = _f(False, _boolean)
     sensor_mismatch_sense_spread: float = _f(0.65, _rng(0.0, 0.99))
     sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))
+    sensor_mismatch_calibrated_offset_counts: int = _f(2, _irng(0, 4095))
     sensor_mismatch_r_spread: float = _f(0.3, _rng(0.0, 0.99))
     bus_voltage_check: bool = _f(False, _boolean)
     bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))

@@ -33,6 +33,7 @@ from firmware_model.laws.layout import (
     P_VEL,
     P_VREF,
 )  # fmt: skip
+from firmware_model.sense_calibration import calibration_step
 from firmware_model.thermal import N_TP, TP_ALPHA, TP_AMBIENT_C, TP_ON, thermal_protection
 from serial_protocol import frame
 from serial_protocol.messages import State
@@ -230,14 +231,16 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks, bus_ticks):
     """One current-loop period (the law's step), the over-current screen (a member counts
     the periods its |sensed current| stays above the threshold while enabled) and the bus
     voltage screen (``safety.bus_voltage_screen``, with ``[safety] bus_voltage_check``).
-    Returns True if one reached its trip count (``oc_ticks``, ``bus_ticks`` say which)."""
+    Returns True if one reached its trip count (``oc_ticks``, ``bus_ticks`` say which) or
+    finished its IS-offset calibration (``sense_calibration.calibration_step``: a member
+    calibrating has its control output held at zero)."""
     law.current(adc, enabled, P, C, S, G, K)
-    bus = False
+    bus = calibration_step(adc, P, C, S, K)
     if fi[FI_BUS_SAMPLES]:
         bus = safety.bus_voltage_screen(
             C[C_BUS_ADC], enabled, fi[FI_BUS_OVER], fi[FI_BUS_UNDER], fi[FI_BUS_SAMPLES],
             bus_ticks,
-        )  # fmt: skip
+        ) or bus  # fmt: skip
     thr = fs[FS_OC_THR]
     over_any = False
     for j in range(adc.shape[0]):

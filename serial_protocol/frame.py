@@ -413,6 +413,13 @@ _ROWS: tuple[_Row, ...] = (
             _f("target_deg", "i32", "deg", "target of the move, 1 LSB = 1e-4 deg", **_POS),
             _FLAGS_F,
             _f("session", "u16", "", "the board's current session (0 = none)"),
+            _f(
+                "sense_offset_a",
+                "f32",
+                "A",
+                "IS offset subtracted from the current readings (calibrated at enable)",
+                appended=True,
+            ),
         ),
     ),
     _Row(

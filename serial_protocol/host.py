@@ -94,6 +94,7 @@ _NACK_WORDS = {
     NackCode.TRAVEL: "the trajectory would leave the travel",
     NackCode.QUEUE_FULL: "the program or point queue is full (wait for free slots)",
     NackCode.NO_STREAM: "no stream is open to take points (START one; it may have run dry)",
+    NackCode.SENSE_OFFSET: "the current-sense offset calibrated at enable is implausible",
 }
 
 

@@ -155,6 +155,7 @@ class NackCode(IntEnum):
     TRAVEL = 15  # the trajectory asked for would leave the travel (limit = the end crossed)
     QUEUE_FULL = 16  # the program or point queue has no free slot (limit = its capacity)
     NO_STREAM = 17  # points with no stream open to take them (StreamStatus.state says why)
+    SENSE_OFFSET = 18  # SetEnable: the IS offset calibrated implausible (limit = ceiling, A)
 
 
 class QueueAction(IntEnum):
@@ -735,6 +736,9 @@ class Status:
     target_deg: float
     fault_flags: int = 0
     session: int = 0
+    # Appended (extension rule): the IS offset the firmware subtracts (A of load current;
+    # calibrated at the last enable with [controller.current] sense_calibration).
+    sense_offset_a: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -11,6 +11,14 @@ conducts, so the sense is unidirectional: the driven half-bridge reports the cur
 flows in the driven direction, ``max(0, sign(duty) * i)``; a current against the duty (or in
 a disabled bridge) flows through low sides and diodes and reads 0. The firmware rebuilds a
 signed current as ``sign(duty) * sensed``.
+
+Both high sides on (the firmware's IS-offset calibration at enable,
+``firmware_model.sense_calibration``): both motor terminals at the supply, 0 V across the
+motor, the current freewheels through the two high sides (a motor that turns drives its
+back-EMF's current ``-K_e w / R`` around that loop). Each IS pin then mirrors its own high
+side's forward current plus the offset, ``max(0, +-i) / k_ILIS + I_ISH``; the ADC reads one
+pin per current-loop period, the one the firmware picks (``sense_sign`` +2: the pin of the
+half-bridge that drives positive current, -2: the other's).
 """
 
 from __future__ import annotations
@@ -130,6 +138,9 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     ``sim.bridge.adc_counts`` (rounded to nearest, plus noise, clamped to the ADC range).
     ``draw``: one standard normal per member, or nothing for a noiseless ADC.
 
+    ``sense_sign`` +-2 (both high sides on, ``apply_bridge``): the pin of the half-bridge
+    that conducts ``sign(sense_sign) * i`` forward, its high side on all period.
+
     ``pwm = (duty, volt, table)``: the applied duty and mean output voltage ``(N,)`` and
     ``pwm_sense_table``'s ``(N, 4)`` (empty: the averaged sense). With it, the pin is read at
     ``sample_point`` of the high side's on-time: the current's PWM ripple, peak to peak
@@ -143,7 +154,14 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     for j in range(x.shape[0]):
         v = sense_sign[j] * x[j, I_A]
         c = 0.0 if 0.0 >= v else v  # np.maximum(0.0, v); NaN passes
-        if fine and sense_sign[j] != 0.0:
+        if abs(sense_sign[j]) == 2.0:
+            # Both high sides on (apply_bridge): the pin's high side conducts all period,
+            # no PWM (no ripple, settled, the RC charged): its current plus the offset.
+            v = 0.5 * v  # sense_sign is +-2
+            c = 0.0 if 0.0 >= v else v
+            if fine:
+                c = c + table[j, PW_OFFSET]
+        elif fine and sense_sign[j] != 0.0:
             d = abs(duty[j])
             s = table[j, PW_SAMPLE]
             if s * d < table[j, PW_SETTLE]:
@@ -167,11 +185,23 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
 
 
 @kernel
-def apply_bridge(duty, enable, arr, supply_v, d_out, en_out, sense_sign, volt):
+def apply_bridge(duty, enable, high_sides, arr, supply_v, d_out, en_out, sense_sign, volt):
     """The bridge per member: the duty clamped to [-1, 1] on the timer's ``1/arr`` steps
     (``sim.bridge.quantise_duty``, half to even), the enable, the IS pin's sign of the
-    next period and the average output voltage (0 while disabled)."""
+    next period and the average output voltage (0 while disabled).
+
+    ``high_sides`` (int ``(N,)``, the firmware's ``C_CAL_LEFT`` row; empty: none): nonzero
+    turns both high sides on whatever the duty and enable say (the plant sees an enabled
+    bridge at duty 0: no voltage across the motor) and picks the IS pin the ADC reads next
+    by its parity (``sense_sign`` +2 even, -2 odd; ``read_adc``)."""
+    both = high_sides.shape[0] > 0
     for j in range(d_out.shape[0]):
+        if both and high_sides[j] != 0:
+            d_out[j] = 0.0
+            en_out[j] = True
+            sense_sign[j] = 2.0 if high_sides[j] % 2 == 0 else -2.0
+            volt[j] = 0.0
+            continue
         v = duty[j]
         if v < -1.0:
             v = -1.0

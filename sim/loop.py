@@ -37,6 +37,7 @@ import numpy as np
 
 from firmware_model import tick as ftick
 from firmware_model.firmware import SIGNAL_NAMES
+from firmware_model.laws.layout import C_CAL_LEFT
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Hello, Telemetry
@@ -760,7 +761,11 @@ class Simulation:
             # New arrays (the firmware may reuse its own), the duty on the timer's steps
             # (sim.bridge.quantise_duty).
             d, en = np.empty(n), np.empty(n, dtype=bool)
-            apply_bridge(duty, enable, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt)
+            # Both high sides on while the project's firmware calibrates its IS offset.
+            high = fw.law.C[C_CAL_LEFT] if self._reads_bus else _NO_HIGH_SIDES
+            apply_bridge(
+                duty, enable, high, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt
+            )
             switching(x, self._vs_n, self._shifts, d, self._sense_sign, self._volt)
             self._duty, self._enable = d, en
             if self._record_inputs:
@@ -882,3 +887,4 @@ def uart_faults(uart: UartParams) -> FaultInjection | None:
 
 
 _NO_DRAW = np.empty(0)
+_NO_HIGH_SIDES = np.empty(0, dtype=np.int64)  # a foreign firmware: never both high sides

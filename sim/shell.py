@@ -332,6 +332,7 @@ _NACK_WORDS = {
     NackCode.TRAVEL: "the trajectory would leave the travel",
     NackCode.QUEUE_FULL: "the program or point queue is full",
     NackCode.NO_STREAM: "no stream is open to take points",
+    NackCode.SENSE_OFFSET: "the current-sense offset calibrated at enable is implausible",
 }
 
 

@@ -46,6 +46,7 @@ from firmware_model.kernel_cache import kernel
 from firmware_model.laws import dispatch as law_steps
 from firmware_model.laws.layout import (
     C_BUS_ADC,
+    C_CAL_LEFT,
     P_DUTY,
     P_IMEAS,
     P_IREF,
@@ -249,7 +250,10 @@ def run_ticks(
                     return STOP_OC
             if stage == BRIDGE:
                 safety.brake_enable(en_now, brake_ticks)
-                apply_bridge(P[P_DUTY], en_now, arr, supply_v, duty, enable, sense_sign, volt)
+                apply_bridge(
+                    P[P_DUTY], en_now, C[C_CAL_LEFT], arr, supply_v, duty, enable, sense_sign,
+                    volt,
+                )  # fmt: skip
                 switching(x, supply_v, shifts, duty, sense_sign, volt)
                 stage = PLANT
                 ctx[CX_MEMBER] = 0

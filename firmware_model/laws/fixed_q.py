@@ -22,6 +22,7 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
+    C_SENSE_OFFSET,
     C_STEPS,
     C_STUCK,
     G_ACC_FF,
@@ -52,7 +53,6 @@ from firmware_model.laws.layout import (
     K_REF_I,
     K_REGEN_A,
     K_SENSE_FLOOR,
-    K_SENSE_OFFSET,
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC_Q,
@@ -228,9 +228,8 @@ def current(adc, enabled, P, C, S, G, K):
     ul = qsig(K[K_U_LIM])
     inv_supply = np.int64(K[K_INV_SUPPLY_Q])
     arr = np.int64(K[K_ARR])
-    offset = np.int64(K[K_SENSE_OFFSET])
     for j in range(adc.shape[0]):
-        a = adc[j] - offset  # the IS pin's offset, as calibrated
+        a = adc[j] - C[C_SENSE_OFFSET, j]  # the IS pin's offset, as calibrated
         if a < 0:
             a = 0
         applied = C[C_STEPS, j]

@@ -21,6 +21,7 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
+    C_SENSE_OFFSET,
     C_STEPS,
     C_STUCK,
     G_ACC_FF,
@@ -49,7 +50,6 @@ from firmware_model.laws.layout import (
     K_REF_I,
     K_REGEN_A,
     K_SENSE_FLOOR,
-    K_SENSE_OFFSET,
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC,
@@ -201,9 +201,8 @@ def current(adc, enabled, P, C, S, G, K):
     ref_row = S_REF_PIPE + ref_i
     a_per_adc, sense_floor, u_lim = K[K_A_PER_ADC], K[K_SENSE_FLOOR], K[K_U_LIM]
     supply_v, arr, i_limit_a = K[K_SUPPLY_V], K[K_ARR], K[K_I_LIMIT_A]
-    offset = np.int64(K[K_SENSE_OFFSET])
     for j in range(adc.shape[0]):
-        a = adc[j] - offset  # the IS pin's offset, as calibrated
+        a = adc[j] - C[C_SENSE_OFFSET, j]  # the IS pin's offset, as calibrated
         if a < 0:
             a = 0
         applied = C[C_STEPS, j]

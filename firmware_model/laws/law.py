@@ -21,6 +21,7 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
+    C_SENSE_OFFSET,
     C_STUCK,
     G_ACC_FF,
     G_EMF_FF,
@@ -42,6 +43,8 @@ from firmware_model.laws.layout import (
     K_ARR,
     K_BUS_COMP,
     K_BUS_HOLD,
+    K_CAL_MAX_VEL,
+    K_CAL_SAMPLES,
     K_DELAY,
     K_DPS_PER_COUNT_TICK,
     K_HALF_Q,
@@ -51,7 +54,6 @@ from firmware_model.laws.layout import (
     K_REF_I,
     K_REGEN_A,
     K_SENSE_FLOOR,
-    K_SENSE_OFFSET,
     K_SUPPLY_V,
     K_U_LIM,
     K_V_PER_BUS_ADC,
@@ -157,7 +159,9 @@ class Law:
         k[K_V_PER_BUS_ADC_Q] = int(round(cur.v_per_bus_adc * (1 << fx.GAIN_FRAC_BITS)))
         k[K_REGEN_A] = cur.regen_bus_current_limit_a
         k[K_BUS_HOLD] = math.ceil(cur.bus_hold_v / cur.v_per_bus_adc)
-        k[K_SENSE_OFFSET] = cur.sense_offset_counts
+        k[K_CAL_SAMPLES] = cur.sense_calibration_samples
+        k[K_CAL_MAX_VEL] = cur.sense_calibration_max_speed_dps
+        self.sense_offset_counts = cur.sense_offset_counts
         # Until the board reports a reading: the configured supply (nominal).
         self.bus_adc_nominal = int(round(self.supply_v / cur.v_per_bus_adc))
         self._derive()
@@ -202,6 +206,7 @@ class Law:
         self.C[C_COUNT] = base + (raw - raw[0] + HALF_REV) % REV - HALF_REV
         self.C[C_RAW_PREV] = raw
         self.C[C_BUS_ADC] = self.bus_adc_nominal
+        self.C[C_SENSE_OFFSET] = self.sense_offset_counts  # until a calibration measures it
         self.S[:] = 0
         self.P[:] = 0.0
         self.P[P_POS] = self.C[C_COUNT] * AXIS_DEG_PER_COUNT

@@ -32,8 +32,16 @@ P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY, P_DERATE = range(8)
 N_P = 8
 # C: integers.
 # C_BUS_ADC: the bus-voltage ADC reading of the period (the board writes it, as the IS pin's).
-C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC = range(7)
-C_PIPE = 7
+# C_SENSE_OFFSET: the IS reading's offset (counts) the firmware subtracts, as configured or as
+# calibrated at the last enable; C_CAL_LEFT: the IS-offset calibration's current-loop periods
+# left (0: not calibrating; firmware_model.sense_calibration), C_CAL_SUM_A / _B: its sums of
+# the two IS pins' readings (the positive and the negative half-bridge's; A < 0: abandoned,
+# the axis moved).
+(
+    C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC, C_SENSE_OFFSET, C_CAL_LEFT,
+    C_CAL_SUM_A, C_CAL_SUM_B,
+) = range(11)  # fmt: skip
+C_PIPE = 11
 # S: the law's arithmetic (float64 or Q16.16).
 S_EP, S_V, S_AD, S_VEL, S_I_V, S_I_I, S_VR, S_IREF, S_IMEAS, S_REF_D_LAST = range(10)
 S_REF_PIPE = 10
@@ -47,10 +55,11 @@ N_G = 14
 # K_BUS_COMP: 1 = duty from the measured bus voltage; K_V_PER_BUS_ADC(_Q): volts per count
 # of it (float, Q8.24); K_REGEN_A: the regenerative bus-current limit (A, 0 = off);
 # K_BUS_HOLD: the bus reading (counts) from which the current integrator holds;
-# K_SENSE_OFFSET: the IS reading's offset (counts) the firmware subtracts.
+# K_CAL_SAMPLES: the IS-offset calibration's readings (even: half of them per pin);
+# K_CAL_MAX_VEL: the axis speed (deg/s) above which it is abandoned.
 (
     K_DPS_PER_COUNT_TICK, K_A_PER_ADC, K_SENSE_FLOOR, K_U_LIM, K_SUPPLY_V, K_ARR, K_DELAY,
     K_I_LIMIT_A, K_REF_I, K_PIPE_I, K_A_PER_ADC_Q, K_HALF_Q, K_INV_SUPPLY_Q, K_BUS_COMP,
-    K_V_PER_BUS_ADC, K_V_PER_BUS_ADC_Q, K_REGEN_A, K_BUS_HOLD, K_SENSE_OFFSET,
-) = range(19)  # fmt: skip
-N_K = 19
+    K_V_PER_BUS_ADC, K_V_PER_BUS_ADC_Q, K_REGEN_A, K_BUS_HOLD, K_CAL_SAMPLES, K_CAL_MAX_VEL,
+) = range(20)  # fmt: skip
+N_K = 20

@@ -302,6 +302,7 @@ def test_which_fields_were_appended_after_version_2_0():
                    "winding_estimate_c"],
         "BoardHeartbeat": ["queue_free", "stream_free", "stream_state", "stream_underruns",
                            "bus_voltage_v"],
+        "Status": ["sense_offset_a"],
     }  # fmt: skip
     # the board must decode every command an older PC sends: no command has appended fields
     assert all(int(c.MSG_TYPE) >= 0x80 for c in _EXTENDED)

@@ -361,7 +361,7 @@ def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
     enable = rng.random(n) < 0.8
     arr, vs = np.full(n, float(bridge.arr)), rng.uniform(20.0, 26.0, n)
     d, en, sign, volt = np.empty(n), np.empty(n, dtype=bool), np.empty(n), np.empty(n)
-    apply_bridge(duty, enable, arr, vs, d, en, sign, volt)
+    apply_bridge(duty, enable, np.empty(0, dtype=np.int64), arr, vs, d, en, sign, volt)
     assert d.tobytes() == quantise_duty(duty, bridge).tobytes()
     np.testing.assert_array_equal(en, enable)
     np.testing.assert_array_equal(volt, np.where(enable, d * vs, 0.0))
