@@ -238,14 +238,20 @@ void tt_decoder_tick(tt_decoder *d, int bytes_this_tick, tt_frame_fn fn, void *c
 
 /* ------------------------------------------------------------------ commands */
 
-/* Payload length of each command type (index = type), 0 = not a command. */
+/* Payload length of each command type (index = type), 0 = not a command: the version 2.0
+ * fields, then with the fields appended since (section 6; only SetLimits has some, each a
+ * 4-byte f32). A payload between the two ends after an appended field or is BAD_LENGTH. */
 static const uint8_t command_len[0x13] = {
     0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5, 16, 9, 11, 49, 14,
+};
+static const uint8_t command_full_len[0x13] = {
+    0, 6, 4, 21, 8, 5, 4, 17, 5, 40, 4, 4, 6, 5, 16, 9, 11, 49, 14,
 };
 
 int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cmd,
                       uint8_t *field)
 {
+    uint8_t padded[TT_MAX_PAYLOAD];
     memset(cmd, 0, sizeof *cmd);
     cmd->type = type;
     *field = TT_NO_FIELD;
@@ -253,6 +259,13 @@ int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cm
     if (type >= 0x80u) return TT_NOT_A_COMMAND;
     if (type >= sizeof command_len || command_len[type] == 0) return TT_UNKNOWN_TYPE;
     if (len < command_len[type]) return TT_BAD_LENGTH;
+    if (len < command_full_len[type]) {
+        /* An older PC's payload: the appended fields it lacks read as 0. */
+        if ((len - command_len[type]) % 4u != 0u) return TT_BAD_LENGTH;
+        memcpy(padded, p, len);
+        memset(padded + len, 0, command_full_len[type] - len);
+        p = padded;
+    }
     cmd->session = get_u16(p + 2);
     switch (type) {
     case TT_HELLO:
@@ -303,6 +316,10 @@ int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cm
         cmd->u.set_limits.current_limit = get_u32(p + 12);
         cmd->u.set_limits.following_error = get_u32(p + 16);
         cmd->u.set_limits.over_current_trip = get_u32(p + 20);
+        cmd->u.set_limits.bus_over_voltage = get_u32(p + 24);
+        cmd->u.set_limits.bus_under_voltage = get_u32(p + 28);
+        cmd->u.set_limits.thermal_derate = get_u32(p + 32);
+        cmd->u.set_limits.thermal_trip = get_u32(p + 36);
         break;
     case TT_SET_TELEMETRY:
         cmd->u.set_telemetry.decimation = get_u16(p + 4);
@@ -461,6 +478,7 @@ size_t tt_encode_limits(uint8_t *out, const tt_limits *m)
     put_u32(out, &at, m->bus_under_voltage);
     put_u32(out, &at, m->thermal_trip);
     put_u32(out, &at, m->winding_estimate);
+    put_u32(out, &at, m->thermal_derate);
     return at;
 }
 

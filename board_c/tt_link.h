@@ -118,6 +118,8 @@ typedef struct {
         struct { uint8_t loop; } get_gains;
         struct {
             uint32_t v_max, a_max, current_limit, following_error, over_current_trip;
+            /* appended (an older PC's shorter payload: 0 = keep the board's) */
+            uint32_t bus_over_voltage, bus_under_voltage, thermal_derate, thermal_trip;
         } set_limits;
         struct { uint16_t decimation; } set_telemetry;
         struct { uint8_t bit; } get_fault;
@@ -184,6 +186,7 @@ typedef struct {
         travel_max, over_speed, over_current_max; /* f32 bits */
     uint32_t bus_over_voltage, bus_under_voltage; /* appended: f32 bits, 0 = off */
     uint32_t thermal_trip, winding_estimate; /* appended: f32 bits, 0 = off */
+    uint32_t thermal_derate;                  /* appended: f32 bits, 0 = off */
 } tt_limits;
 typedef struct {
     uint16_t cmd_id;

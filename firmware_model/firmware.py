@@ -50,7 +50,7 @@ from firmware_model.laws.layout import (
 )
 from firmware_model.params import FirmwareParams
 from firmware_model.stability import unstable_reason
-from firmware_model.thermal import N_TP, protection_constants
+from firmware_model.thermal import N_TP, TP_DERATE_C, TP_TRIP_C, protection_constants
 from planner.online import OnlinePlanner
 from planner.profile import build_profile
 from serial_protocol import frame
@@ -135,6 +135,8 @@ _MUTATING = (
 #: Smallest positive rate or limit a command may carry (deg/s, deg/s², A, deg): the lower
 #: bound of the documented ranges (docs/protocol.md section 4).
 MIN_POSITIVE = 1e-3
+#: The range of the thermal protection's thresholds (degC; ``[safety] thermal_*_c``).
+THERMAL_MIN_C, THERMAL_MAX_C = -40.0, 250.0
 #: Longest dwell of a program block (s).
 MAX_DWELL_S = 3600.0
 #: Smallest receive ring of the board (bytes per servo tick); at high baud rates the ring
@@ -357,10 +359,7 @@ class Firmware:
         fi[ftick.FI_DIAG_TICKS] = s.encoder_diag_ticks
         # The bus trips' thresholds in counts of the bus reading (safety.bus_voltage_screen).
         v_per_count = params.current.v_per_bus_adc
-        self._bus_over_counts = math.floor(s.bus_over_voltage_v / v_per_count)
-        self._bus_under_counts = math.ceil(s.bus_under_voltage_v / v_per_count)
-        fi[ftick.FI_BUS_OVER] = self._bus_over_counts
-        fi[ftick.FI_BUS_UNDER] = self._bus_under_counts
+        self._set_bus_thresholds(s.bus_over_voltage_v, s.bus_under_voltage_v)
         fi[ftick.FI_BUS_SAMPLES] = s.bus_voltage_samples if s.bus_voltage_check else 0
         fs[ftick.FS_MM_V_PER_BUS] = v_per_count if s.sensor_mismatch_measured_bus else 0.0
         fs[ftick.FS_MM_SENSE_SPREAD] = s.sensor_mismatch_sense_spread
@@ -790,9 +789,9 @@ class Firmware:
                    float(s.sensor_mismatch_deg))  # fmt: skip
         live &= ~runaway
         if s.thermal_protection:
-            hot = self._thermal_est[:, 0] >= s.thermal_trip_c
-            self._trip(live & hot, Fault.THERMAL, self._thermal_est[:, 0].copy(),
-                       float(s.thermal_trip_c))  # fmt: skip
+            trip_c = self.thermal_thresholds_c[1]
+            hot = self._thermal_est[:, 0] >= trip_c
+            self._trip(live & hot, Fault.THERMAL, self._thermal_est[:, 0].copy(), trip_c)
             live &= ~hot
         over = np.abs(vel) > s.over_speed_dps
         self._trip(live & over, Fault.OVER_SPEED, vel, s.over_speed_dps)
@@ -826,8 +825,8 @@ class Firmware:
             reading = self.law.C[C_BUS_ADC]
             bus_v = reading * self.params.current.v_per_bus_adc
             over = hit & (reading > self._bus_over_counts)
-            self._trip(over, Fault.BUS_OVER_VOLTAGE, bus_v, s.bus_over_voltage_v)
-            self._trip(hit & ~over, Fault.BUS_UNDER_VOLTAGE, bus_v, s.bus_under_voltage_v)
+            self._trip(over, Fault.BUS_OVER_VOLTAGE, bus_v, self.bus_over_voltage_v)
+            self._trip(hit & ~over, Fault.BUS_UNDER_VOLTAGE, bus_v, self.bus_under_voltage_v)
 
     def _trip(self, mask: Any, fault: Fault, value: Any, threshold: float = 0.0) -> None:
         """Latch ``fault`` on the members in ``mask``: bridge off, report, abandon motion.
@@ -1011,6 +1010,7 @@ class Firmware:
             return Gains(cmd_id=msg.cmd_id, loop=msg.loop, kp=_first(g[kp_name]), ki=ki, kd=0.0)
         if isinstance(msg, GetLimits):
             lim, s = self.params.limits, self.params.safety
+            derate_c, trip_c = self.thermal_thresholds_c
             return Limits(
                 cmd_id=msg.cmd_id, v_max_dps=self.v_max_dps, a_max_dps2=self.a_max_dps2,
                 current_limit_a=self.current_limit_a,
@@ -1018,12 +1018,13 @@ class Firmware:
                 over_current_trip_a=self._oc_thr_a, travel_min_deg=lim.travel_min_deg,
                 travel_max_deg=lim.travel_max_deg, over_speed_dps=s.over_speed_dps,
                 over_current_max_a=s.over_current_a,
-                bus_over_voltage_v=s.bus_over_voltage_v if s.bus_voltage_check else 0.0,
-                bus_under_voltage_v=s.bus_under_voltage_v if s.bus_voltage_check else 0.0,
-                thermal_trip_c=s.thermal_trip_c if s.thermal_protection else 0.0,
+                bus_over_voltage_v=self.bus_over_voltage_v if s.bus_voltage_check else 0.0,
+                bus_under_voltage_v=self.bus_under_voltage_v if s.bus_voltage_check else 0.0,
+                thermal_trip_c=trip_c if s.thermal_protection else 0.0,
                 winding_estimate_c=(
                     float(self._thermal_est[0, 0]) if s.thermal_protection else 0.0
                 ),
+                thermal_derate_c=derate_c if s.thermal_protection else 0.0,
             )  # fmt: skip
         if isinstance(msg, GetFault):
             if not 0 <= msg.bit <= 31:
@@ -1485,7 +1486,7 @@ class Firmware:
              trip_a if math.isfinite(trip_a) else math.inf),
             ("following_error_deg", m.following_error_deg, MIN_POSITIVE, math.inf),
             ("over_current_trip_a", trip_a, MIN_POSITIVE, s.over_current_a),
-        ])  # fmt: skip
+        ]) or self._threshold_refusal(m)  # fmt: skip
         if refusal is not None:
             return refusal
         v_max, a_max = float(m.v_max_dps), float(m.a_max_dps2)
@@ -1511,6 +1512,7 @@ class Firmware:
         self.current_limit_a = float(m.current_limit_a)
         self.following_error_deg = float(m.following_error_deg)
         self._oc_thr_a = float(trip_a)
+        self._apply_thresholds(m)
         if self._mode == "step":
             self._v_clamp_dps = min(self._v_clamp_dps, v_max)
         else:
@@ -1521,6 +1523,67 @@ class Firmware:
     def over_current_trip_a(self) -> float:
         """The over-current trip threshold in A (``SetLimits.over_current_trip_a``)."""
         return self._oc_thr_a
+
+    def _set_bus_thresholds(self, over_v: float, under_v: float) -> None:
+        """The bus trips' thresholds (V), and in counts of the bus reading for the compiled
+        screen (``safety.bus_voltage_screen``)."""
+        v_per_count = self.params.current.v_per_bus_adc
+        self.bus_over_voltage_v, self.bus_under_voltage_v = float(over_v), float(under_v)
+        self._bus_over_counts = math.floor(over_v / v_per_count)
+        self._bus_under_counts = math.ceil(under_v / v_per_count)
+        self._fi[ftick.FI_BUS_OVER] = self._bus_over_counts
+        self._fi[ftick.FI_BUS_UNDER] = self._bus_under_counts
+
+    @property
+    def thermal_thresholds_c(self) -> tuple[float, float]:
+        """The thermal protection's derating start and trip (degC) in force."""
+        at = ftick.FS_THERMAL
+        return float(self._fs[at + TP_DERATE_C]), float(self._fs[at + TP_TRIP_C])
+
+    def _threshold_refusal(self, m: SetLimits) -> _Refusal | None:
+        """The appended thresholds of ``m`` (0 = keep): the bus trips within the band
+        between the configured supply and the BTN7971B's lock-out, the thermal ones in
+        ``[safety]``'s range with the derating below the trip; a check the configuration
+        turned off takes only 0 (``TOO_HIGH``, limit 0)."""
+        s, cur = self.params.safety, self.params.current
+        supply_v = float(cur.supply_v)
+        checks = []
+        for name, low, high, on in (
+            # Above the supply (else it trips on enable), at most where the chip may have
+            # locked its outputs out already (the trip would come after it).
+            ("bus_over_voltage_v", supply_v, float(cur.bus_hold_v), s.bus_voltage_check),
+            # Below the supply (else it trips on enable).
+            ("bus_under_voltage_v", MIN_POSITIVE, supply_v, s.bus_voltage_check),
+            ("thermal_derate_c", THERMAL_MIN_C, THERMAL_MAX_C, s.thermal_protection),
+            ("thermal_trip_c", THERMAL_MIN_C, THERMAL_MAX_C, s.thermal_protection),
+        ):
+            value = getattr(m, name)
+            if value != 0.0:  # NaN too: refused as NOT_FINITE
+                checks.append((name, value, low, high) if on else (name, value, 0.0, 0.0))
+        refusal = _check_ranges(checks)
+        if refusal is not None:
+            return refusal
+        derate, trip = self.thermal_thresholds_c
+        new_derate = m.thermal_derate_c if m.thermal_derate_c != 0.0 else derate
+        new_trip = m.thermal_trip_c if m.thermal_trip_c != 0.0 else trip
+        if not new_derate < new_trip:
+            if m.thermal_derate_c != 0.0:
+                return NackCode.TOO_HIGH, "thermal_derate_c", new_trip
+            return NackCode.TOO_LOW, "thermal_trip_c", new_derate
+        return None
+
+    def _apply_thresholds(self, m: SetLimits) -> None:
+        """Apply ``_threshold_refusal``'s accepted thresholds (0 keeps each)."""
+        over = m.bus_over_voltage_v if m.bus_over_voltage_v != 0.0 else self.bus_over_voltage_v
+        under = (
+            m.bus_under_voltage_v if m.bus_under_voltage_v != 0.0 else self.bus_under_voltage_v
+        )
+        self._set_bus_thresholds(over, under)
+        at = ftick.FS_THERMAL
+        if m.thermal_derate_c != 0.0:
+            self._fs[at + TP_DERATE_C] = float(m.thermal_derate_c)
+        if m.thermal_trip_c != 0.0:
+            self._fs[at + TP_TRIP_C] = float(m.thermal_trip_c)
 
     def _cmd_clear_fault(self, m: ClearFault) -> _Refusal | None:
         # Without a latched fault: ACKed, nothing changes (the bridge stays as it is).

@@ -504,6 +504,25 @@ class FirmwareParams:
                 self.limits.v_max_dps,
                 f"must be below safety.over_speed_dps = {self.safety.over_speed_dps}",
             )
+        # The bus trips (as SetLimits checks them): over above the supply, at most the
+        # level from which the BTN7971B may have locked out (the trip would come after
+        # it); under below the supply (else either trips as soon as the bridge is enabled).
+        s, cur = self.safety, self.current
+        if s.bus_voltage_check:
+            if not cur.supply_v <= s.bus_over_voltage_v <= cur.bus_hold_v:
+                _fail(
+                    "bus_over_voltage_v",
+                    s.bus_over_voltage_v,
+                    f"must lie in [controller.current] supply_v .. bus_hold_v "
+                    f"({cur.supply_v:g} .. {cur.bus_hold_v:g} V) with bus_voltage_check",
+                )
+            if not s.bus_under_voltage_v <= cur.supply_v:
+                _fail(
+                    "bus_under_voltage_v",
+                    s.bus_under_voltage_v,
+                    f"must not be above [controller.current] supply_v ({cur.supply_v:g} V) "
+                    "with bus_voltage_check",
+                )
         # The watchdog counts whole ticks: at or below one tick it would never see a frame
         # arrive in time (and rounds to 0 ticks, which is "off").
         watchdog_s = self.safety.watchdog_s

@@ -276,7 +276,19 @@ _ROWS: tuple[_Row, ...] = (
     _Row(ClearFault, (_CMD_ID, _SESSION)),
     _Row(SetGains, (_CMD_ID, _SESSION, *_GAINS_F)),
     _Row(GetGains, (_CMD_ID, _SESSION, _GAINS_F[0])),
-    _Row(SetLimits, (_CMD_ID, _SESSION, *_LIMITS_F)),
+    _Row(
+        SetLimits,
+        (
+            _CMD_ID,
+            _SESSION,
+            *_LIMITS_F,
+            _f("bus_over_voltage_v", "f32", "V", "bus over-voltage trip; 0 = keep", appended=True),
+            _f("bus_under_voltage_v", "f32", "V", "bus under-voltage trip; 0 = keep",
+               appended=True),
+            _f("thermal_derate_c", "f32", "degC", "derating starts; 0 = keep", appended=True),
+            _f("thermal_trip_c", "f32", "degC", "thermal trip; 0 = keep", appended=True),
+        ),
+    ),  # fmt: skip
     _Row(GetLimits, (_CMD_ID, _SESSION)),
     _Row(GetStatus, (_CMD_ID, _SESSION)),
     _Row(
@@ -375,21 +387,21 @@ _ROWS: tuple[_Row, ...] = (
                 "bus_over_voltage_v",
                 "f32",
                 "V",
-                "bus over-voltage trip; 0 = off (read-only)",
+                "bus over-voltage trip; 0 = off",
                 appended=True,
             ),
             _f(
                 "bus_under_voltage_v",
                 "f32",
                 "V",
-                "bus under-voltage trip; 0 = off (read-only)",
+                "bus under-voltage trip; 0 = off",
                 appended=True,
             ),
             _f(
                 "thermal_trip_c",
                 "f32",
                 "degC",
-                "thermal protection's trip; 0 = off (read-only)",
+                "thermal protection's trip; 0 = off",
                 appended=True,
             ),
             _f(
@@ -397,6 +409,13 @@ _ROWS: tuple[_Row, ...] = (
                 "f32",
                 "degC",
                 "thermal protection's winding estimate; 0 = off (read-only)",
+                appended=True,
+            ),
+            _f(
+                "thermal_derate_c",
+                "f32",
+                "degC",
+                "thermal protection's derating start; 0 = off",
                 appended=True,
             ),  # fmt: skip
         ),

@@ -375,6 +375,11 @@ class SetLimits:
     ``current_limit_a`` clamps the current reference (never trips); ``over_current_trip_a``
     is the over-current trip threshold (must be >= the clamp). NaN for
     ``over_current_trip_a`` is refused like any other field.
+
+    Appended (extension rule): the bus over/under-voltage trips' thresholds (V) and the
+    thermal protection's derating start and trip (degC). For these and
+    ``over_current_trip_a``, 0 keeps the board's present value: an older PC's shorter
+    payload reads them as 0, so it changes none of them.
     """
 
     MSG_TYPE: ClassVar[int] = MsgType.SET_LIMITS
@@ -385,6 +390,10 @@ class SetLimits:
     following_error_deg: float
     over_current_trip_a: float = 0.0
     session: int = 0
+    bus_over_voltage_v: float = 0.0
+    bus_under_voltage_v: float = 0.0
+    thermal_derate_c: float = 0.0
+    thermal_trip_c: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -716,9 +725,11 @@ class Limits:
     # Appended (extension rule): the bus voltage trips' thresholds, 0 = the check off.
     bus_over_voltage_v: float = 0.0
     bus_under_voltage_v: float = 0.0
-    # Appended (extension rule): the thermal protection (read-only; 0, 0 when it is off).
+    # Appended (extension rule): the thermal protection (0, 0 when it is off; the trip is
+    # settable, the estimate read-only), then where its derating starts (settable).
     thermal_trip_c: float = 0.0
     winding_estimate_c: float = 0.0
+    thermal_derate_c: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

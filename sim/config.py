@@ -85,6 +85,10 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
         "current_limit_a": (True, "float"),
         "following_error_deg": (True, "float"),
         "over_current_trip_a": (False, "float"),
+        "bus_over_voltage_v": (False, "float"),
+        "bus_under_voltage_v": (False, "float"),
+        "thermal_derate_c": (False, "float"),
+        "thermal_trip_c": (False, "float"),
     },
     "get_limits": {},
     "get_fault": {"bit": (True, "int")},
@@ -169,6 +173,10 @@ class ScriptedCommand:
                 f["current_limit_a"],
                 f["following_error_deg"],
                 f.get("over_current_trip_a", 0.0),
+                bus_over_voltage_v=f.get("bus_over_voltage_v", 0.0),
+                bus_under_voltage_v=f.get("bus_under_voltage_v", 0.0),
+                thermal_derate_c=f.get("thermal_derate_c", 0.0),
+                thermal_trip_c=f.get("thermal_trip_c", 0.0),
             )
         if self.type == "get_limits":
             return msg.GetLimits(cmd_id)

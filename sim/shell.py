@@ -67,6 +67,8 @@ TOOLBAR_COLUMNS = 80
 MOVE_DEFAULTS = {"v_max_dps": 990.0, "a_max_dps2": 148.0, "j_max_dps3": 0.0}
 
 LOOP_WORDS = tuple(loop.name.lower() for loop in Loop)
+#: ``limits``' optional thresholds after the over-current trip (SetLimits' appended fields).
+_THRESHOLDS = ("bus_over_voltage_v", "bus_under_voltage_v", "thermal_derate_c", "thermal_trip_c")
 PROFILE_WORDS = tuple(p.name.lower() for p in Profile)
 
 
@@ -103,11 +105,13 @@ COMMANDS: dict[str, CommandSpec] = {
     ),
     "getgains": CommandSpec("getgains current|velocity|position", "read the gains of one loop"),
     "limits": CommandSpec(
-        "limits V_MAX_DPS A_MAX_DPS2 CURRENT_A FOLLOW_DEG [TRIP_A]",
+        "limits V_MAX_DPS A_MAX_DPS2 CURRENT_A FOLLOW_DEG [TRIP_A [BUS_OVER_V [BUS_UNDER_V "
+        "[DERATE_C [THERMAL_TRIP_C]]]]]",
         "set the motion limits, the current clamp and the trip thresholds",
         "CURRENT_A clamps the current (never trips); TRIP_A is the over-current trip "
-        "threshold (absent or 0: keep the board's). Out-of-range values are refused, never "
-        "clipped.",
+        "threshold, BUS_OVER_V / BUS_UNDER_V the bus voltage trips, DERATE_C / THERMAL_TRIP_C "
+        "where the thermal protection starts derating and trips (each absent or 0: keep the "
+        "board's). Out-of-range values are refused, never clipped.",
     ),
     "fault": CommandSpec(
         "fault BIT", "details of fault flag BIT (0..31): tick, value and threshold"
@@ -246,7 +250,8 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         return ParsedCommand(verb, lambda: client.get_gains(which), {"loop": which})
     if verb == "limits":
         names = ["v_max_dps", "a_max_dps2", "current_limit_a", "following_error_deg"]
-        values = numbers([*names, "over_current_trip_a"], 4)
+        thresholds = ["over_current_trip_a", *_THRESHOLDS]
+        values = numbers([*names, *thresholds], 4)
         _fit(text, m.SetLimits(0, **values))
         return ParsedCommand(verb, lambda: client.set_limits(**values), values)
     if verb == "fault":
@@ -376,10 +381,21 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
             f"kd {reply.kd:g}"
         )
     if isinstance(reply, Limits):
-        return (
+        text = (
             f"v_max {reply.v_max_dps:g} deg/s, a_max {reply.a_max_dps2:g} deg/s^2, current "
-            f"limit {reply.current_limit_a:g} A, following error {reply.following_error_deg:g} deg"
+            f"limit {reply.current_limit_a:g} A, following error {reply.following_error_deg:g} "
+            f"deg, over-current trip {reply.over_current_trip_a:g} A"
         )
+        if reply.bus_over_voltage_v or reply.bus_under_voltage_v:
+            text += (
+                f", bus trips {reply.bus_under_voltage_v:g}..{reply.bus_over_voltage_v:g} V"
+            )
+        if reply.thermal_trip_c:
+            text += (
+                f", thermal derate {reply.thermal_derate_c:g} degC, trip "
+                f"{reply.thermal_trip_c:g} degC (winding {reply.winding_estimate_c:.1f} degC)"
+            )
+        return text
     if isinstance(reply, HelloReply):
         return (
             f"protocol {reply.protocol_version}, firmware {reply.fw_major}.{reply.fw_minor}."

@@ -112,6 +112,12 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("set_gains", SetGains(8, Loop.VELOCITY, 0.5, 2.0, 0.0, session=S), 8),
     ("get_gains", GetGains(9, Loop.POSITION, session=S), 9),
     ("set_limits", SetLimits(10, 990.0, 148.0, 5.0, 10.0, 7.0, session=S), 10),
+    (
+        "set_limits_thresholds",
+        SetLimits(10, 990.0, 148.0, 5.0, 10.0, 0.0, session=S, bus_over_voltage_v=26.5,
+                  bus_under_voltage_v=19.0, thermal_derate_c=90.0, thermal_trip_c=110.0),
+        10,
+    ),  # fmt: skip
     ("get_limits", GetLimits(11, session=S), 11),
     ("get_status", GetStatus(12, session=S), 12),
     ("set_telemetry", SetTelemetry(13, 2, session=S), 13),
@@ -194,7 +200,10 @@ FRAMES: list[tuple[str, Any, int]] = [
     ("gains", Gains(9, Loop.CURRENT, 0.25, 180.0, 0.0), 13),
     (
         "limits",
-        Limits(11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0, 120.0, 41.5),
+        Limits(
+            11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0, 120.0, 41.5,
+            100.0,
+        ),  # fmt: skip
         14,
     ),
     ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
@@ -333,6 +342,8 @@ def exchanges() -> list[dict[str, Any]]:
     fake = frame.SYNC + head + bytes((frame.crc8(head),))
     good = GetStatus(9, session=S)
     _, payload = frame.encode_payload(good)
+    _, old_limits = frame.encode_payload(SetLimits(3, 900.0, 2000.0, 5.0, 30.0, session=S))
+    old_limits = old_limits[:24]  # an older PC's SetLimits (version 2.0's fields)
     return [
         {"name": "commands_need_a_session", "steps": [
             step(GetStatus(1, session=0), _expect("Nack", cmd_id=1, msg_type=t.GET_STATUS,
@@ -426,6 +437,34 @@ def exchanges() -> list[dict[str, Any]]:
                  seq=5),  # ClearFault without a fault changes nothing
             step(SetTelemetry(7, 0, session=S), _expect("Ack", cmd_id=7,
                  msg_type=t.SET_TELEMETRY), seq=6),
+        ]},
+        {"name": "thresholds_set_kept_by_an_older_pc_and_refused", "steps": [
+            hello,
+            # SetLimits' appended thresholds (0 = keep): the thermal protection's (on in
+            # this configuration) are set and read back
+            step(SetLimits(2, 1000.0, 2000.0, 5.0, 30.0, 0.0, session=S, thermal_derate_c=90.0,
+                           thermal_trip_c=110.0), _expect("Ack", cmd_id=2,
+                 msg_type=t.SET_LIMITS), seq=1),
+            # an older PC's SetLimits: the 24 bytes of version 2.0; the thresholds are kept
+            step(frame.frame_raw(MsgType.SET_LIMITS, old_limits, 2), _expect("Ack", cmd_id=3,
+                 msg_type=t.SET_LIMITS), seq=2),
+            step(GetLimits(4, session=S), _expect("Limits", cmd_id=4, v_max_dps=900.0,
+                 thermal_derate_c=90.0, thermal_trip_c=110.0, bus_over_voltage_v=0.0,
+                 bus_under_voltage_v=0.0), seq=3),
+            # ended inside an appended field: BAD_LENGTH
+            step(frame.frame_raw(MsgType.SET_LIMITS, old_limits + b"\x00\x00", 4),
+                 _expect("Nack", cmd_id=3, msg_type=t.SET_LIMITS, code=NackCode.BAD_LENGTH,
+                         field=255), seq=4),
+            # the derating above the trip in force; the bus check is off in this
+            # configuration, so its thresholds take only 0; nothing of either is applied
+            step(SetLimits(5, 800.0, 2000.0, 5.0, 30.0, 0.0, session=S,
+                           thermal_derate_c=115.0), _expect("Nack", cmd_id=5,
+                 msg_type=t.SET_LIMITS, code=NackCode.TOO_HIGH, field=9, limit=110.0), seq=5),
+            step(SetLimits(6, 800.0, 2000.0, 5.0, 30.0, 0.0, session=S,
+                           bus_over_voltage_v=26.0), _expect("Nack", cmd_id=6,
+                 msg_type=t.SET_LIMITS, code=NackCode.TOO_HIGH, field=7, limit=0.0), seq=6),
+            step(GetLimits(7, session=S), _expect("Limits", cmd_id=7, v_max_dps=900.0,
+                 thermal_derate_c=90.0, thermal_trip_c=110.0), seq=7),
         ]},
         {"name": "bad_frames_get_one_nack_each", "steps": [
             hello,

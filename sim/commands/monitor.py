@@ -77,10 +77,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--limits",
-        nargs=4,
+        nargs="+",
         type=wire_number(_msg.SetLimits, "v_max_dps"),
-        metavar=("V_MAX", "A_MAX", "CURRENT_A", "FOLLOW_DEG"),
-        help="set the limits",
+        metavar="V",
+        help="set the limits: V_MAX A_MAX CURRENT_A FOLLOW_DEG, then optionally TRIP_A "
+        "BUS_OVER_V BUS_UNDER_V DERATE_C THERMAL_TRIP_C (0 keeps the board's)",
     )
     parser.add_argument(
         "--gains-from",
@@ -328,6 +329,14 @@ def _scripted(args: argparse.Namespace) -> list[str]:
     if args.disable:
         out.append("disable")
     if args.limits:
+        if not 4 <= len(args.limits) <= 9:
+            from serial_protocol.exceptions import CommandError
+
+            raise CommandError(
+                f"--limits {' '.join(repr(v) for v in args.limits)}: takes 4 to 9 numbers "
+                "(V_MAX A_MAX CURRENT_A FOLLOW_DEG [TRIP_A BUS_OVER_V BUS_UNDER_V DERATE_C "
+                "THERMAL_TRIP_C])"
+            )
         out.append("limits " + " ".join(repr(v) for v in args.limits))
     if args.gains_from:
         out += gains_commands(args.gains_from)
