@@ -85,14 +85,23 @@ def raw_times(chunks: Iterable[tuple[float, bytes]], baud: int) -> Iterator[tupl
             t_s += len(part) * per_byte_s
 
 
+#: The slowest ``--speed`` (a recorded second lasts 11.6 days).
+MIN_SPEED = 1e-6
+
+
 def main(args: argparse.Namespace) -> int:
     import contextlib
 
     from serial_protocol.exceptions import CommandError
     from sim.capture import is_can_log, is_timestamped, read_chunks
 
-    if not args.speed > 0:  # also NaN
-        raise CommandError(f"--speed {args.speed!r}: must be > 0 (inf: no pause)")
+    # A slower speed stretches a 1 s gap past what the clock can sleep (1e-320 overflowed
+    # time_t: found by the CLI fuzz); also NaN.
+    if not args.speed >= MIN_SPEED:
+        raise CommandError(
+            f"--speed {args.speed!r}: must be >= {MIN_SPEED:g} (times the recorded pace; "
+            "inf: no pause)"
+        )
     if args.baud <= 0:
         raise CommandError(f"--baud {args.baud!r}: must be > 0")
     if is_can_log(args.capture):

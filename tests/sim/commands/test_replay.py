@@ -157,6 +157,7 @@ def test_replay_a_can_log_onto_a_virtual_bus(tmp_path):
     [
         (["{cap}", "--speed", "0"], "--speed"),
         (["{cap}", "--speed", "nan"], "--speed"),
+        (["{cap}", "--speed", "1e-320"], "--speed 1e-320: must be >= 1e-06"),
         (["{cap}", "--to", "can://virtual/x"], "plays to a port"),
         (["missing.cap"], "cannot read"),
         (["{cap}", "--to", "/dev/no-such-port"], "cannot open serial port"),
