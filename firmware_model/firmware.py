@@ -24,6 +24,7 @@ if no member could follow it; the replies, ``Status`` and telemetry describe mem
 from __future__ import annotations
 
 import copy
+import functools
 import math
 from collections import deque
 from collections.abc import Callable
@@ -149,6 +150,8 @@ _COMMAND_CLASSES = frozenset(COMMAND_TYPES)
 _Refusal = tuple[NackCode, str | None, float]
 # A command answered later (a SetEnable calibrating the IS offset), by _apply's handlers.
 _PENDING: Any = object()
+# link_status: the heartbeat's wire values as the PC decodes them.
+_HEARTBEAT_FROM_WIRE = functools.partial(frame.from_wire_values, BoardHeartbeat)
 _MODES = {"hold": ftick.MODE_HOLD, "plan": ftick.MODE_PLAN, "step": ftick.MODE_STEP}
 _DISABLED, _IDLE, _MOVING, _HOLDING, _FAULT = (
     int(State.DISABLED),
@@ -372,6 +375,7 @@ class Firmware:
         )
         fs[ftick.FS_MM_OFFSET_A] = offset_counts * params.current.a_per_adc
         fs[ftick.FS_MM_R_SPREAD] = s.sensor_mismatch_r_spread
+        fs[ftick.FS_BUS_V_PER_COUNT] = v_per_count
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
 
@@ -1043,29 +1047,51 @@ class Firmware:
 
     def link_status(self) -> BoardHeartbeat:
         """The board's heartbeat now: state, faults and the receiver's counters."""
+        return _HEARTBEAT_FROM_WIRE(self._link_wire())
+
+    def _link_wire(self) -> tuple[int, ...]:
+        """The ``BoardHeartbeat`` of now as its wire values, in wire order: what
+        ``link_status`` decodes and what the compiled tick's heartbeat frames
+        (``_pack_link``; ``firmware_model.tick.frame_heartbeat``)."""
         d = self.decoder
         w = 0xFFFFFFFF
         t_s = self.tick * self.dt_s
-        return BoardHeartbeat(
-            tick=self.tick, session=self.session, state=State(self._state0()),
-            fault_flags=int(self._flags[0]), rx_frames=d.frames & w,
-            rx_crc_errors=d.crc_errors & w, rx_header_errors=d.header_errors & w,
-            rx_bytes_dropped=d.bytes_dropped & w, rx_seq_gaps=d.seq_gaps & w,
-            rx_overflow_bytes=self._rx_overflow_bytes & w,
-            rx_silence_discards=d.partial_discards & w, rx_nacked=self._counts["nacks"] & w,
-            tx_telemetry_dropped=self._tx_dropped & w,
-            queue_free=self.program.free(t_s), stream_free=self.stream.free(t_s),
-            stream_state=self.stream.state, stream_underruns=self.stream.underruns & w,
-            bus_voltage_v=self.bus_voltage_v,
+        stream = self.stream
+        return (
+            self.tick & w, self.session, self._state0(), int(self._flags[0]) & w,
+            d.frames & w, d.crc_errors & w, d.header_errors & w, d.bytes_dropped & w,
+            d.seq_gaps & w, self._rx_overflow_bytes & w, d.partial_discards & w,
+            self._counts["nacks"] & w, self._tx_dropped & w, self.program.free(t_s),
+            stream.free(t_s), int(stream.state), stream.underruns & w, self._bus_mv(),
         )  # fmt: skip
+
+    def _pack_link(self) -> None:
+        """The heartbeat's fields into ``fi[FI_HB:]`` for the compiled tick, which frames
+        the heartbeat itself (it writes the tick, state, fault flags, telemetry dropped and
+        bus voltage; the rest changes only in this Python: commands, the receiver, trips).
+        ``FI_LINK`` 0 while the program queue or the point stream is active: their flow
+        control changes with time in their Python bookkeeping, ``_transmit`` sends that
+        heartbeat."""
+        fi = self._fi
+        if not self._heartbeat_ticks or self.program.active() or self.stream.active():
+            fi[ftick.FI_LINK] = 0
+            return
+        fi[ftick.FI_LINK] = 1
+        fi[ftick.FI_HB :] = self._link_wire()
+
+    def _bus_mv(self) -> int:
+        """Member 0's bus voltage as the firmware reads it, in mV (the ADC reading times
+        volts per count, ``[controller.current] bus_divider_ratio``), at most 65535: the
+        wire value of ``BoardHeartbeat.bus_voltage_v``."""
+        volts = int(self.law.C[C_BUS_ADC, 0]) * self.params.current.v_per_bus_adc
+        return min(round(volts * 1000.0), 0xFFFF)
 
     @property
     def bus_voltage_v(self) -> float:
         """Member 0's bus voltage as the firmware reads it (V: the ADC reading times volts
         per count, ``[controller.current] bus_divider_ratio``), in the 1 mV steps and
         range of ``BoardHeartbeat.bus_voltage_v`` (at most 65.535 V)."""
-        volts = int(self.law.C[C_BUS_ADC, 0]) * self.params.current.v_per_bus_adc
-        return min(round(volts * 1000.0), 0xFFFF) / 1000.0
+        return self._bus_mv() / 1000.0
 
     def _state0(self) -> int:
         """The state of member 0 (the one replies and telemetry describe)."""

@@ -36,10 +36,11 @@ from firmware_model.laws.layout import (
 from firmware_model.sense_calibration import calibration_step
 from firmware_model.thermal import N_TP, TP_ALPHA, TP_AMBIENT_C, TP_ON, thermal_protection
 from serial_protocol import frame
-from serial_protocol.messages import State
+from serial_protocol.messages import BoardHeartbeat, State, Telemetry
 
 __all__ = [
-    "TABLES", "framer_ok", "current_stage", "frame_telemetry", "servo_stage", "state_of",
+    "HEARTBEAT_TABLES", "TABLES", "bus_mv", "current_stage", "frame_heartbeat",
+    "frame_telemetry", "frame_wire", "framer_ok", "heartbeat_wire", "servo_stage", "state_of",
     "trip_screen",
 ]  # fmt: skip
 
@@ -49,9 +50,10 @@ __all__ = [
     FS_TOL, FS_OC_THR, FS_STUCK_MIN_VEL, FS_OVER_SPEED, FS_PROF_T0, FS_PROF_DURATION,
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
     FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
-    FS_MM_V_PER_BUS, FS_MM_SENSE_SPREAD, FS_MM_OFFSET_A, FS_MM_R_SPREAD,
-) = range(32)  # fmt: skip
-N_FS = 32
+    FS_MM_V_PER_BUS, FS_MM_SENSE_SPREAD, FS_MM_OFFSET_A, FS_MM_R_SPREAD, FS_BUS_V_PER_COUNT,
+) = range(33)  # fmt: skip
+N_FS = 33
+# FS_BUS_V_PER_COUNT: volts per count of the bus reading (what BoardHeartbeat reports).
 # The thermal protection's block at the end of fs (Firmware sizes fs to hold it):
 # fs[FS_THERMAL:FS_THERMAL + thermal.N_TP] its constants, then (T_w, T_h) of each member
 # (its estimate, degC). Not in sf: growing that tuple made every compiled tick ~0.4 us
@@ -65,8 +67,16 @@ FS_THERMAL = N_FS
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
     FI_OC_ANY, FI_OC_SAMPLES, FI_TX_FRAMES, FI_TX_BYTES, FI_TX_DROPPED, FI_JUMP, FI_STUCK,
     FI_HEARTBEAT, FI_JOG_TIMEOUT, FI_DIAG_TICKS, FI_BUS_OVER, FI_BUS_UNDER, FI_BUS_SAMPLES,
-) = range(21)  # fmt: skip
-N_FI = 21
+    FI_LINK,
+) = range(22)  # fmt: skip
+# FI_LINK: 1 while the BoardHeartbeat's fields are in fi (FI_HB on), 0 while the heartbeat is
+# Python's (the program queue or the point stream is active: their flow control changes with
+# time in their Python bookkeeping). FI_HB: the BoardHeartbeat's wire values in wire order
+# (frame_wire's input): the compiled tick writes the tick, state, fault flags, telemetry
+# dropped and bus voltage (_HB_OWN); Firmware._pack_link the rest (the receiver's counters,
+# the session, the queue's and the stream's flow control).
+FI_HB = 22
+N_FI = FI_HB + len(frame.wire_fields(BoardHeartbeat))
 # FI_BUS_OVER / _UNDER: the bus trips' thresholds in counts of the bus reading (a reading
 # above / below trips); FI_BUS_SAMPLES: readings in a row that trip, 0 = the check off.
 MODE_HOLD, MODE_PLAN, MODE_STEP = 0, 1, 2
@@ -276,16 +286,15 @@ def state_of(j, fi, enabled, fault):
     return _HOLDING if fi[FI_MOVED] else _IDLE
 
 
-# ---------------------------------------------------------------- telemetry framing
-# The telemetry frame, built from serial_protocol's own tables and checked against its
-# encoder below (framer_ok); a format this framer does not know leaves the framing to
-# serial_protocol.frame (framer_ok() False: the simulation hands every telemetry tick to
-# Python).
+# ---------------------------------------------------------------- framing
+# The board's frames of every tick written in compiled code: the Telemetry
+# (frame_telemetry) and the BoardHeartbeat (frame_heartbeat, through frame_wire), built from
+# serial_protocol's own tables and checked against its encoder at first use (framer_ok); a
+# format these framers do not know leaves the framing to serial_protocol.frame (framer_ok()
+# False: the simulation hands every tick's transmit to Python).
 _FMT = frame._TELEMETRY.fmt
 _HEAD_BYTES = frame.HEADER_BYTES
 _CRC_BYTES = frame.TELEMETRY_FRAME_BYTES - frame.HEADER_BYTES - frame._TELEMETRY_LEN
-_HEADS = np.array([list(h) for h, _ in frame._TELEMETRY_HEADS], dtype=np.uint8)
-_HEAD_CRC = np.array([c for _, c in frame._TELEMETRY_HEADS], dtype=np.int64)
 _SIZES = {"I": 4, "i": 4, "h": 2, "H": 2, "B": 1, "b": 1}
 # Per payload field after the tick: byte size, scale, lowest and highest wire value.
 _SAT = {name: (scale, lo, hi) for name, scale, lo, hi in frame._TELEMETRY_SATURATION}
@@ -307,6 +316,15 @@ def _crc_table(width: int) -> np.ndarray:
     return table
 
 
+def _head_tables(cls: type) -> tuple[np.ndarray, np.ndarray]:
+    """``frame.frame_heads(cls)`` as arrays: ``(256, 6)`` header bytes, ``(256,)`` CRCs."""
+    heads = frame.frame_heads(cls)
+    return (
+        np.array([list(h) for h, _ in heads], dtype=np.uint8),
+        np.array([c for _, c in heads], dtype=np.int64),
+    )
+
+
 _CRC_TABLE = _crc_table(16 if _CRC_BYTES == 2 else 32)
 _FIELD_SIZE = np.array([_SIZES.get(c, 0) for c in _FMT[1:7]], dtype=np.int64)
 _FIELD_SCALE = np.array([_SAT.get(n, (1.0, 0, 0))[0] for n in _NAMES])
@@ -321,32 +339,17 @@ def _put(out, at, value, size):
     return at + size
 
 
-@kernel
-def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, tables):
-    """Write the telemetry frame of ``(tick, values = (sp_pos_deg, sp_vel_dps, pos_deg,
-    vel_dps, current_a, duty), state, fault, fault_flags)`` with sequence ``seq`` into
-    ``out[at:]``
-    (values beyond the wire range saturate, as ``frame.encode_telemetry_fields``).
-    ``tables``: :data:`TABLES`, serial_protocol's (passed in, not frozen into the compiled
-    code, so that a new frame format is never served from numba's cache). Returns the
-    index after the frame, or -1 for a NaN (which ``frame`` refuses)."""
-    heads, head_crc, crc_table, size, scale, lo, hi, widths = tables
-    head_bytes, crc_bytes, flag_bytes = widths[0], widths[1], widths[2]
-    head = heads[seq]
+@kernel(inline="always")
+def _put_head(out, at, head, head_bytes):
     for b in range(head_bytes):
         out[at + b] = head[b]
-    start = at + head_bytes
-    pos = _put(out, start, tick & 0xFFFFFFFF, 4)
-    for f in range(6):
-        x = values[f] * scale[f]
-        if x != x:
-            return -1
-        x = min(max(x, lo[f]), hi[f])
-        pos = _put(out, pos, np.int64(np.rint(x)), size[f])
-    out[pos] = state
-    out[pos + 1] = fault
-    pos = _put(out, pos + 2, fault_flags & 0xFFFFFFFF, flag_bytes)
-    crc = head_crc[seq]
+    return at + head_bytes
+
+
+@kernel(inline="always")
+def _put_crc(out, start, pos, crc, crc_table, crc_bytes):
+    """The frame's CRC over ``out[start:pos]`` (the payload), continued from ``crc`` (the
+    register after the header), written at ``pos``; returns the index after it."""
     if crc_bytes == 2:
         for b in range(start, pos):
             crc = ((crc << 8) & 0xFFFF) ^ crc_table[((crc >> 8) ^ out[b]) & 0xFF]
@@ -358,10 +361,99 @@ def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, table
     return _put(out, pos, crc, crc_bytes)
 
 
+@kernel
+def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, tables):
+    """Write the telemetry frame of ``(tick, values = (sp_pos_deg, sp_vel_dps, pos_deg,
+    vel_dps, current_a, duty), state, fault, fault_flags)`` with sequence ``seq`` into
+    ``out[at:]``
+    (values beyond the wire range saturate, as ``frame.encode_telemetry_fields``).
+    ``tables``: :data:`TABLES`, serial_protocol's (passed in, not frozen into the compiled
+    code, so that a new frame format is never served from numba's cache). Returns the
+    index after the frame, or -1 for a NaN (which ``frame`` refuses)."""
+    heads, head_crc, crc_table, size, scale, lo, hi, widths = tables
+    head_bytes, crc_bytes, flag_bytes = widths[0], widths[1], widths[2]
+    start = _put_head(out, at, heads[seq], head_bytes)
+    pos = _put(out, start, tick & 0xFFFFFFFF, 4)
+    for f in range(6):
+        x = values[f] * scale[f]
+        if x != x:
+            return -1
+        x = min(max(x, lo[f]), hi[f])
+        pos = _put(out, pos, np.int64(np.rint(x)), size[f])
+    out[pos] = state
+    out[pos + 1] = fault
+    pos = _put(out, pos + 2, fault_flags & 0xFFFFFFFF, flag_bytes)
+    return _put_crc(out, start, pos, head_crc[seq], crc_table, crc_bytes)
+
+
+# frame_wire's and frame_heartbeat's layout array (HEARTBEAT_TABLES[4]).
+L_HEAD, L_CRC, L_FRAME, L_TICK, L_STATE, L_FLAGS, L_DROPPED, L_BUS = range(8)
+
+
+@kernel
+def frame_wire(out, at, seq, wire, tables):
+    """Write the frame of a message of integer fields with sequence ``seq`` into
+    ``out[at:]``: ``wire`` (int64, ``(n_fields,)``) holds the wire values in wire order (what
+    ``struct.pack`` takes; each is written in its field's size, two's complement, little
+    endian). ``tables``: ``(heads, head_crc, crc_table, sizes, layout)`` of the message
+    (:data:`HEARTBEAT_TABLES`; ``layout[L_HEAD]``, ``layout[L_CRC]``: header and CRC
+    bytes). Returns the index after the frame."""
+    heads, head_crc, crc_table, size, layout = tables
+    start = _put_head(out, at, heads[seq], layout[L_HEAD])
+    pos = start
+    for f in range(size.shape[0]):
+        pos = _put(out, pos, wire[f], size[f])
+    return _put_crc(out, start, pos, head_crc[seq], crc_table, layout[L_CRC])
+
+
+@kernel(inline="always")
+def bus_mv(C, fs):
+    """Member 0's bus reading in mV (its ADC counts times ``fs[FS_BUS_V_PER_COUNT]``,
+    rounded, at most 65535): ``Firmware.bus_voltage_v`` on the wire."""
+    mv = np.rint(float(C[C_BUS_ADC, 0]) * fs[FS_BUS_V_PER_COUNT] * 1000.0)
+    return np.int64(min(mv, 65535.0))
+
+
+_HB_FIELDS = frame.wire_fields(BoardHeartbeat)
+HB_FRAME_BYTES = frame.frame_bytes(BoardHeartbeat)
+# HEARTBEAT_TABLES[4]: header and CRC bytes, frame bytes, then where the fields the compiled
+# tick writes sit in the wire values (the rest: Firmware._pack_link).
+_HB_OWN = ("tick", "state", "fault_flags", "tx_telemetry_dropped", "bus_voltage_v")
+
+
+@kernel
+def frame_heartbeat(out, at, free, seq, fs, fi, enabled, fault, fault_flags, C, tables):
+    """The ``BoardHeartbeat`` of this tick (``Firmware.link_status``) into ``out[at:]`` if
+    it fits in ``free`` bytes: the fields ``Firmware._pack_link`` put in ``fi[FI_HB:]``,
+    with the tick, member 0's state and fault flags, the telemetry frames dropped and the
+    bus voltage of now. ``tables``: :data:`HEARTBEAT_TABLES`. Returns the index after the
+    frame, or -1 if it does not fit."""
+    layout = tables[4]
+    if layout[L_FRAME] > free:
+        return -1
+    wire = fi[FI_HB:]
+    wire[layout[L_TICK]] = fi[FI_TICK] & 0xFFFFFFFF
+    wire[layout[L_STATE]] = state_of(0, fi, enabled, fault)
+    wire[layout[L_FLAGS]] = fault_flags[0] & 0xFFFFFFFF
+    wire[layout[L_DROPPED]] = fi[FI_TX_DROPPED] & 0xFFFFFFFF
+    wire[layout[L_BUS]] = bus_mv(C, fs)
+    return frame_wire(out, at, seq, wire, tables)
+
+
 #: The tables ``frame_telemetry`` takes, from ``serial_protocol.frame``.
 TABLES = (
-    _HEADS, _HEAD_CRC, _CRC_TABLE, _FIELD_SIZE, _FIELD_SCALE, _FIELD_LO, _FIELD_HI,
+    *_head_tables(Telemetry), _CRC_TABLE, _FIELD_SIZE, _FIELD_SCALE, _FIELD_LO, _FIELD_HI,
     np.array([_HEAD_BYTES, _CRC_BYTES, 4 if _FMT.endswith("BBI") else 0], dtype=np.int64),
+)  # fmt: skip
+#: The tables ``frame_wire`` takes for a ``BoardHeartbeat``, from ``serial_protocol.frame``.
+HEARTBEAT_TABLES = (
+    *_head_tables(BoardHeartbeat), _CRC_TABLE,
+    np.array([_SIZES.get(f.fmt, 0) for f in _HB_FIELDS], dtype=np.int64),
+    np.array(
+        [_HEAD_BYTES, _CRC_BYTES, HB_FRAME_BYTES]
+        + [frame.field_index(BoardHeartbeat, name) for name in _HB_OWN],
+        dtype=np.int64,
+    ),
 )  # fmt: skip
 
 
@@ -384,12 +476,52 @@ def _framer_ok() -> bool:
     return True
 
 
+def heartbeat_wire(msg: BoardHeartbeat) -> np.ndarray:
+    """``msg``'s wire values in wire order (``frame_wire``'s input), as the codec packs
+    them."""
+    return np.array(frame.wire_values(msg), dtype=np.int64)
+
+
+def _heartbeat_framer_ok() -> bool:
+    """Whether ``frame_wire`` with :data:`HEARTBEAT_TABLES` writes ``frame.encode``'s
+    ``BoardHeartbeat`` (every field an integer on the wire)."""
+    if any(f.fmt not in _SIZES for f in _HB_FIELDS) or _CRC_BYTES not in (2, 4):
+        return False
+    rng = np.random.default_rng(2)
+    out = np.zeros(HB_FRAME_BYTES, dtype=np.uint8)
+    for k in range(64):
+        msg = frame.from_wire_values(BoardHeartbeat, _random_wire(BoardHeartbeat, rng))
+        want = frame.encode(msg, k * 37 % 256)
+        end = frame_wire(out, 0, k * 37 % 256, heartbeat_wire(msg), HEARTBEAT_TABLES)
+        if end != len(want) or bytes(out[:end]) != want:
+            return False
+    return True
+
+
+def _random_wire(cls: type, rng: np.random.Generator) -> tuple[int, ...]:
+    """Random wire values of a message of integer fields: a defined code for a code
+    field, any value of its wire type for the others (bounds included often)."""
+    values = []
+    for f in frame.wire_fields(cls):
+        if f.enum is not None:
+            codes = [0, 1] if f.enum is bool else [int(m) for m in f.enum]
+            values.append(codes[int(rng.integers(len(codes)))])
+            continue
+        bits = 8 * _SIZES[f.fmt]
+        lo, hi = (
+            (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if f.fmt.islower() else (0, (1 << bits) - 1)
+        )
+        pick = int(rng.integers(4))
+        values.append(lo if pick == 0 else hi if pick == 1 else int(rng.integers(lo, hi + 1)))
+    return tuple(values)
+
+
 _FRAMER_OK: list[bool] = []
 
 
 def framer_ok() -> bool:
-    """True if the compiled framer reproduces ``serial_protocol.frame``'s telemetry bytes
-    (checked once per process, on first use)."""
+    """True if the compiled framers reproduce ``serial_protocol.frame``'s telemetry and
+    heartbeat bytes (checked once per process, on first use)."""
     if not _FRAMER_OK:
-        _FRAMER_OK.append(_framer_ok())
+        _FRAMER_OK.append(_framer_ok() and _heartbeat_framer_ok())
     return _FRAMER_OK[0]

@@ -105,10 +105,13 @@ __all__ = [
     "field_index",
     "field_name",
     "frame_bytes",
+    "frame_heads",
     "frame_raw",
+    "from_wire_values",
     "payload_bytes",
     "payload_size_of_type",
     "wire_fields",
+    "wire_values",
 ]
 
 SYNC = b"\xa5\x5a"
@@ -723,6 +726,36 @@ def frame_bytes(cls: type) -> int:
     return _BY_CLASS[cls].payload.size + OVERHEAD_BYTES
 
 
+def frame_heads(cls: type) -> tuple[tuple[bytes, int], ...]:
+    """Per sequence number 0..255: the 6 header bytes of a frame carrying a ``cls`` message
+    and the CRC-32 register after bytes 2..5 of it (the frame's CRC continues over the
+    payload from there). What a framer without this codec (the firmware's compiled one)
+    needs to write the same frames."""
+    codec = _BY_CLASS[cls]
+    heads = (
+        bytes((0xA5, 0x5A, codec.payload.size, codec.msg_type, seq, codec.hdr_by_seq[seq]))
+        for seq in range(256)
+    )
+    return tuple((head, _zlib_crc32(head[2:])) for head in heads)
+
+
+def wire_values(msg: Message) -> tuple[int | float, ...]:
+    """The values ``encode`` packs for ``msg`` (scaled, rounded, codes as integers), in
+    wire order; ``from_wire_values`` is the inverse. A framer without this codec (the
+    firmware's compiled one) writes the same frame from them."""
+    return _BY_CLASS[type(msg)].to_wire(msg)
+
+
+def from_wire_values(cls: type, values: tuple[int | float, ...]) -> Message:
+    """The ``cls`` message of wire values ``values`` (in wire order), as a decoder builds
+    it; an undefined code raises ``ValueError``."""
+    try:
+        return _BY_CLASS[cls].from_wire(tuple(values))
+    except _BadCode as exc:
+        name = _BY_CLASS[cls].fields[exc.index].name
+        raise ValueError(f"{cls.__name__}.{name}: undefined code") from None
+
+
 TELEMETRY_FRAME_BYTES = frame_bytes(Telemetry)
 
 _TELEMETRY = _BY_CLASS[Telemetry]
@@ -731,15 +764,8 @@ _TELEMETRY_HDR = _TELEMETRY.hdr_by_seq
 _TELEMETRY_LEN = _TELEMETRY.payload.size
 _TELEMETRY_TYPE = _TELEMETRY.msg_type
 _TELEMETRY_UNPACK = _TELEMETRY.payload.unpack_from
-# Per sequence number: the 6 header bytes of a telemetry frame and the CRC-32 register after
-# bytes 2..5 of it (the frame's CRC continues over the payload from there).
-_TELEMETRY_HEADS = tuple(
-    (head, _zlib_crc32(head[2:]))
-    for head in (
-        bytes((0xA5, 0x5A, _TELEMETRY_LEN, _TELEMETRY_TYPE, seq, _TELEMETRY_HDR[seq]))
-        for seq in range(256)
-    )
-)
+# Per sequence number: the header bytes and the CRC register after them (frame_heads).
+_TELEMETRY_HEADS = frame_heads(Telemetry)
 # (field, scale, lowest, highest wire value) of the saturating fields, in wire order
 _TELEMETRY_SATURATION = (
     ("sp_pos_deg", POS_SCALE, -(2**31), 2**31 - 1),

@@ -564,7 +564,13 @@ class Simulation:
         flags[st.F_ENC_NOISY] = enc.noisy
         flags[st.F_ADC_NOISY] = self._adc_noisy
         flags[st.F_ENC_FAULT] = enc.faulty
-        txbuf = np.empty((n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
+        # At most a telemetry frame a tick and a heartbeat every heartbeat period.
+        hb_ticks = fw._heartbeat_ticks
+        heartbeats = n_ticks // hb_ticks + 1 if hb_ticks else 0
+        txbuf = np.empty(
+            (n_ticks + 1) * frame.TELEMETRY_FRAME_BYTES + heartbeats * ftick.HB_FRAME_BYTES,
+            dtype=np.uint8,
+        )
         # The last applied duty (the IS pin reads within its PWM period, sim.bridge.read_adc).
         duty, enable = self._duty.astype(float), self._enable.astype(bool)
         if self._logs_of is not self._xlog:  # a new log allocation (or the first call)
@@ -588,6 +594,7 @@ class Simulation:
         x0, x1 = (x, spare)
         while True:
             fw._pack()
+            fw._pack_link()
             flags[st.F_REPLIES] = len(fw._replies) > 0
             flags[st.F_RX_PRESENT] = len(self._rx_for_board) > 0
             flags[st.F_RX_ACTIVE] = bool(self._pc_out) or self.uart_rx.pending > 0
@@ -611,7 +618,7 @@ class Simulation:
             )  # fmt: skip
             args = (
                 k_end, ctx, credit, flags, (law.P, law.C, law.S, law.G, law.K), fw_args, sim,
-                plant_args, logs, txbuf, ftick.TABLES, enc.fault_args(n),
+                plant_args, logs, txbuf, _TABLES, enc.fault_args(n),
             )  # fmt: skip
             if law.fixed in _LOADED:
                 code = st.run_ticks(*args)
@@ -888,3 +895,5 @@ def uart_faults(uart: UartParams) -> FaultInjection | None:
 
 _NO_DRAW = np.empty(0)
 _NO_HIGH_SIDES = np.empty(0, dtype=np.int64)  # a foreign firmware: never both high sides
+# The compiled framers' tables (run_ticks' ``tables``).
+_TABLES = (ftick.TABLES, ftick.HEARTBEAT_TABLES)

@@ -9,9 +9,10 @@ of ``sim/loop.py``'s docstring, for N members:
    is injected); the observer (``law.estimate``).
 2. ``SERVO``: the brake countdown, the back-EMF check, the setpoint, the position and
    velocity loops, the trip screen (``firmware_model.tick.servo_stage``).
-3. ``TICKUP``, ``TRANSMIT``: the firmware's tick count, the telemetry frame into the TX
-   FIFO (``firmware_model.tick.frame_telemetry``), as ``Firmware._transmit`` does with no
-   reply queued.
+3. ``TICKUP``, ``TRANSMIT``: the firmware's tick count, the ``BoardHeartbeat`` when one is
+   due (``firmware_model.tick.frame_heartbeat``) and the telemetry frame
+   (``firmware_model.tick.frame_telemetry``) into the TX FIFO, as ``Firmware._transmit``
+   does with no reply queued.
 4. ``CURRENT``, ``BRIDGE``, ``PLANT`` (``current_loop_multiple`` times): the ADC, the
    current loop and its over-current screen (``firmware_model.tick.current_stage``), the
    bridge (kept on for a member braking after a trip, ``firmware_model.safety.brake_enable``),
@@ -28,8 +29,9 @@ its place kept in ``ctx`` (tick, stage, current-loop period, plant member); the 
 ``STOP_END``       the requested ticks are done
 ``STOP_RX``        bytes reached the board (or the silence rule fires): the receive side
 ``STOP_TRIP``      the trip screen hit: ``Firmware._check`` latches the trips
-``STOP_TRANSMIT``  replies are queued, a heartbeat is due (or no compiled framer):
-                   ``Firmware._transmit``
+``STOP_TRANSMIT``  replies are queued, a heartbeat is due that the compiled tick does not
+                   frame (the program queue or the point stream is active, or it does
+                   not fit), or no compiled framer: ``Firmware._transmit``
 ``STOP_OC``        an over-current trip: ``Firmware._trip``
 ``STOP_MODE``      the plant met a mode without matrices: ``Plant._load``
 ``STOP_NOISE``     a block of noise draws is used up: draw the next block
@@ -57,6 +59,7 @@ from firmware_model.laws.layout import (
 from firmware_model.tick import (
     FI_DECIMATION,
     FI_HEARTBEAT,
+    FI_LINK,
     FI_SEQ,
     FI_TICK,
     FI_TX_BYTES,
@@ -67,6 +70,7 @@ from firmware_model.tick import (
     FS_SP_VEL,
     SF_BUS_TICKS,
     current_stage,
+    frame_heartbeat,
     frame_telemetry,
     servo_stage,
     state_of,
@@ -121,6 +125,7 @@ def run_ticks(
     slots, phis, rates, consts, levels, budget, bus, heat)`` (``bus``: ``sim.supply.Bus``'s
     arrays, ``heat``: ``sim.thermal.Heat``'s); ``logs = (xlog, signals (11 arrays of
     (capacity, N)), voltage, bus_v, winding_c)``;
+    ``tables``: ``(firmware_model.tick.TABLES, HEARTBEAT_TABLES)``, the framers' tables;
     ``enc_faults``: ``Encoder.fault_args`` (used while ``flags[F_ENC_FAULT]``)."""
     P, C, S, G, K = law
     fs, fi, enabled, fault, oc_ticks, prof, en_now, fault_flags, sf = fw
@@ -145,6 +150,7 @@ def run_ticks(
     no_draw = duty[:0]  # no noise draws (a view: the kernel allocates nothing)
     keep = flags[F_KEEP] != 0
     frame_bytes = flags[F_FRAME_BYTES]
+    tel_tables, hb_tables = tables
     while True:
         k = ctx[CX_K]
         stage = ctx[CX_STAGE]
@@ -199,10 +205,26 @@ def run_ticks(
             stage = TRANSMIT
         if stage == TRANSMIT:
             hb = fi[FI_HEARTBEAT]
-            if flags[F_REPLIES] or not flags[F_FRAMER] or (hb and fi[FI_TICK] % hb == 0):
+            due = hb != 0 and fi[FI_TICK] % hb == 0
+            if flags[F_REPLIES] or not flags[F_FRAMER] or (due and not fi[FI_LINK]):
                 ctx[CX_STAGE] = CURRENT
                 ctx[CX_PERIOD] = 0
                 return STOP_TRANSMIT
+            if due:  # the BoardHeartbeat, before this tick's telemetry (Firmware._transmit)
+                at = ctx[CX_TXLEN]
+                end = frame_heartbeat(
+                    txbuf, at, flags[F_FIFO] - ctx[CX_PENDING], fi[FI_SEQ], fs, fi, enabled,
+                    fault, fault_flags, C, hb_tables,
+                )  # fmt: skip
+                if end < 0:  # it does not fit: Firmware._transmit queues it
+                    ctx[CX_STAGE] = CURRENT
+                    ctx[CX_PERIOD] = 0
+                    return STOP_TRANSMIT
+                ctx[CX_TXLEN] = end
+                ctx[CX_PENDING] += end - at
+                fi[FI_SEQ] = (fi[FI_SEQ] + 1) & 0xFF
+                fi[FI_TX_FRAMES] += 1
+                fi[FI_TX_BYTES] += end - at
             dec = fi[FI_DECIMATION]
             if dec and (fi[FI_TICK] - 1) % dec == 0:
                 free = flags[F_FIFO] - ctx[CX_PENDING]
@@ -216,7 +238,7 @@ def run_ticks(
                     end = frame_telemetry(
                         txbuf, at, fi[FI_SEQ], fi[FI_TICK] - 1, values,
                         state_of(0, fi, enabled, fault), fault[0],
-                        fault_flags[0] if fault[0] else 0, tables,
+                        fault_flags[0] if fault[0] else 0, tel_tables,
                     )  # fmt: skip
                     if end < 0:  # NaN: frame refuses it, the firmware's Python says so
                         ctx[CX_STAGE] = CURRENT
