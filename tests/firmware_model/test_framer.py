@@ -35,7 +35,7 @@ def test_the_framers_are_in_use():
     assert ftick.framer_ok()
 
 
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 @given(_wire_values(BoardHeartbeat), st.integers(0, 255), st.integers(0, 40))
 def test_frame_wire_writes_the_codecs_heartbeat(values, seq, at):
     msg = frame.from_wire_values(BoardHeartbeat, values)
@@ -52,7 +52,7 @@ def test_frame_wire_writes_the_codecs_heartbeat(values, seq, at):
 _U32 = st.integers(0, 2**40)  # counters beyond 2**32 wrap on the wire
 
 
-@settings(max_examples=150)
+@settings(max_examples=150, deadline=None)
 @given(
     tick=st.integers(0, 2**34),
     session=st.integers(0, 0xFFFF),
@@ -116,7 +116,7 @@ def test_the_heartbeat_is_pythons_while_a_program_or_a_stream_runs():
     assert off._fi[ftick.FI_LINK] == 0
 
 
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)
 @given(
     values=st.lists(
         st.floats(allow_nan=False, allow_infinity=True, width=64), min_size=6, max_size=6
