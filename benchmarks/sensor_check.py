@@ -66,27 +66,30 @@ def _peak(exp, *, seed=0, batch=None, overrides=None):
     return (float(peak[ok].max()) if ok.any() else float("nan")), int((~ok).sum())
 
 
-def false_alarms(seeds: int, spread: bool) -> float:
+def false_alarms(seeds: int, spread: bool, overrides: dict | None = None) -> float:
+    over = overrides or {}
     rows = []
     fig6, fig7, fig8 = load("fig6"), load("fig7"), load("fig8")
     fig6 = with_duration(fig6, 6.0)
     for v in (20.0, 24.0, 26.0):
         for s in range(seeds):
             rows.append((f"fig6 step, {v:g} V, seed {s}", _peak(fig6, seed=s,
-                         overrides={"supply.voltage_v": v})))  # fmt: skip
+                         overrides={**over, "supply.voltage_v": v})))  # fmt: skip
     for s in range(seeds):
-        rows.append((f"fig7, seed {s}", _peak(fig7, seed=s)))
-        rows.append((f"fig8, seed {s}", _peak(fig8, seed=s)))
-        rows.append((f"fig8 Table 1 a_max, seed {s}", _peak(table1_experiment(), seed=s)))
-        rows.append((f"fig8 no feed-forward, seed {s}", _peak(fig8, seed=s, overrides=FF_OFF)))
+        rows.append((f"fig7, seed {s}", _peak(fig7, seed=s, overrides=over)))
+        rows.append((f"fig8, seed {s}", _peak(fig8, seed=s, overrides=over)))
+        rows.append((f"fig8 Table 1 a_max, seed {s}",
+                     _peak(table1_experiment(), seed=s, overrides=over)))  # fmt: skip
+        rows.append((f"fig8 no feed-forward, seed {s}",
+                     _peak(fig8, seed=s, overrides={**over, **FF_OFF})))  # fmt: skip
     for name in ("step_demo", "lookahead_program"):
         exp = load_experiment(bench_configs.path(name + ".toml"))
-        rows.append((name, _peak(exp)))
+        rows.append((name, _peak(exp, overrides=over)))
     if spread:
         plants = plant_spread(fig8)
         ov = {key: [p[key] for p in plants] for key in plants[0]}
         rows.append((f"tune spread on fig8 ({len(plants)} plants)",
-                     _peak(fig8, batch=len(plants), overrides=ov)))  # fmt: skip
+                     _peak(fig8, batch=len(plants), overrides={**over, **ov})))  # fmt: skip
     thr = fig8.bench.firmware.safety.sensor_mismatch_deg
     worst = 0.0
     print(f"False alarms (check disarmed; threshold {thr:g} deg): peak integrated excess")
@@ -145,7 +148,8 @@ def main() -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="a firmware setting for the detection runs (e.g. safety.brake_s=0)",
+        help="a setting for every run (e.g. safety.brake_s=0, "
+        "controller.current.sense_calibration=true)",
     )
     args = ap.parse_args()
     overrides = {}
@@ -153,14 +157,17 @@ def main() -> None:
         key, sep, value = item.partition("=")
         if not sep:
             ap.error(f"--set {item!r}: expected KEY=VALUE")
+        if value in ("true", "false"):  # a switch, e.g. controller.current.sense_calibration
+            overrides[key] = value == "true"
+            continue
         try:
             overrides[key] = int(value) if value.lstrip("-").isdigit() else float(value)
         except ValueError:
-            ap.error(f"--set {item!r}: {value!r} is not a number")
+            ap.error(f"--set {item!r}: {value!r} is not a number, true or false")
     wall0 = time.perf_counter()
     detection(overrides)
     if not args.no_false_alarms:
-        false_alarms(args.seeds, not args.no_spread)
+        false_alarms(args.seeds, not args.no_spread, overrides)
     print(f"{time.perf_counter() - wall0:.0f} s wall, load {os.getloadavg()[0]:.1f}")
 
 

@@ -367,7 +367,7 @@ class Firmware:
         fs[ftick.FS_MM_V_PER_BUS] = v_per_count if s.sensor_mismatch_measured_bus else 0.0
         fs[ftick.FS_MM_SENSE_SPREAD] = s.sensor_mismatch_sense_spread
         # With the offset calibrated at every enable (the axis never drives before), the
-        # back-EMF check allows for what the calibration leaves, not the chip's spread.
+        # back-EMF check's offset allowance is the one for a calibrated board.
         offset_counts = (
             s.sensor_mismatch_calibrated_offset_counts
             if params.current.sense_calibration

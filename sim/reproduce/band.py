@@ -109,6 +109,10 @@ EFFECTS: dict[str, dict[str, Any]] = {
     "chip k_ILIS 3k (firmware 8.5k)": {"current_sense.k_ilis": 3000.0},
     "chip k_ILIS 14k (firmware 8.5k)": {"current_sense.k_ilis": 14000.0},
     "IS offset 50 µA": {"current_sense.is_offset_ua": 50.0},
+    "IS offset 50 µA, calibrated at enable": {
+        "current_sense.is_offset_ua": 50.0,
+        "controller.current.sense_calibration": True,
+    },
     "ADC at the ripple's valley": {"current_sense.sample_point": 0.0},
     "bridge switching times (typical)": {
         "bridge.pulse_shift_with_current_us": -0.7,

@@ -221,8 +221,8 @@ def test_a_retry_during_the_calibration_is_answered_once():
     assert sim.fw.counters["duplicates"] == 2
 
 
-def test_mismatch_allowance_is_the_calibrated_residual():
-    on = _sim()
+def test_the_mismatch_check_takes_the_calibrated_allowance():
+    on = _sim(**{"safety.sensor_mismatch_calibrated_offset_counts": 2})
     off = Simulation(load_bench(BENCH), seed=3)
     a = on.fw.params.current.a_per_adc
     assert on.fw._fs[FS_MM_OFFSET_A] == pytest.approx(2 * a)
