@@ -206,14 +206,16 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     if not live:
         return False
     law.servo(p, v, a, v_clamp, fs[FS_I_LIMIT], P, C, S, G, K)
-    return trip_screen(P, C, fs, fi) or sensor
+    return trip_screen(P, C, fs, fi, enabled) or sensor
 
 
 @kernel
-def trip_screen(P, C, fs, fi):
-    """Whether a member meets a trip condition after this tick's servo step (encoder jump
-    or stuck, over-speed, position outside ``[FS_POS_LO, FS_POS_HI]``, following error
-    against ``fs[FS_SP_POS]``, watchdog, a jog's timeout)."""
+def trip_screen(P, C, fs, fi, enabled):
+    """Whether an enabled member meets a trip condition after this tick's servo step
+    (encoder jump or stuck, over-speed, position outside ``[FS_POS_LO, FS_POS_HI]``,
+    following error against ``fs[FS_SP_POS]``), or the watchdog or a jog's timeout fired.
+    A disabled member (tripped, or off) is not screened: ``Firmware._check`` trips only
+    enabled ones, and a tripped member of a batch would stop the compiled run every tick."""
     if fi[FI_WATCHDOG] and fi[FI_TICK] - fi[FI_LAST_RX] > fi[FI_WATCHDOG]:
         return True
     # a jog's dead-man timeout (Firmware._check plans the stop)
@@ -225,7 +227,7 @@ def trip_screen(P, C, fs, fi):
     stuck_vel, over_speed = fs[FS_STUCK_MIN_VEL], fs[FS_OVER_SPEED]
     lo, hi = fs[FS_POS_LO], fs[FS_POS_HI]
     for j in range(C.shape[1]):
-        if (
+        if enabled[j] and (
             abs(C[C_INNOV, j]) > jump
             or (C[C_STUCK, j] >= stuck_limit and abs(P[P_VREF, j]) > stuck_vel)
             or abs(P[P_VEL, j]) > over_speed

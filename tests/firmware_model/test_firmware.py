@@ -578,7 +578,7 @@ def test_signal_row_is_signals_in_order(make_bench, batch):
     assert sig["vel_dps"] != 0.0 if batch is None else np.all(sig["vel_dps"] != 0.0)
 
 
-def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
+def test_batch_trip_screen_is_the_union_of_the_enabled_members_conditions():
     from firmware_model import tick as ftick
     from firmware_model.laws.layout import C_INNOV, C_STUCK, P_POS, P_VEL, P_VREF
 
@@ -595,13 +595,17 @@ def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
         pos, sp = rng.normal(0.0, 1.0, n), float(rng.normal())
         step_mode = rng.random() < 0.3  # a STEP move: no following-error check
         lo, hi = (-2.5, 2.5) if rng.random() < 0.5 else (-math.inf, math.inf)
+        enabled = rng.random(n) < 0.8  # a tripped (disabled) member is not screened
         want = (
-            (np.abs(innov) > 35)
-            | ((stuck >= 10) & (np.abs(vel_ref) > 100.0))
-            | (np.abs(vel) > 150.0)
-            | ((np.abs(sp - pos) > 2.0) & (not step_mode))
-            | (pos < lo)
-            | (pos > hi)
+            (
+                (np.abs(innov) > 35)
+                | ((stuck >= 10) & (np.abs(vel_ref) > 100.0))
+                | (np.abs(vel) > 150.0)
+                | ((np.abs(sp - pos) > 2.0) & (not step_mode))
+                | (pos < lo)
+                | (pos > hi)
+            )
+            & enabled
         ).any()
         P, C = np.zeros((7, n)), np.zeros((8, n), dtype=np.int64)
         C[C_INNOV], C[C_STUCK] = innov, stuck
@@ -610,7 +614,7 @@ def test_batch_trip_screen_is_the_union_of_the_per_member_conditions():
         fs[ftick.FS_FOLLOWING] = 2.0
         fs[ftick.FS_POS_LO], fs[ftick.FS_POS_HI] = lo, hi
         fi[ftick.FI_MODE] = ftick.MODE_STEP if step_mode else ftick.MODE_HOLD
-        got = ftick.trip_screen(P, C, fs, fi)
+        got = ftick.trip_screen(P, C, fs, fi, enabled)
         assert got == want
         hits += bool(want)
     assert 300 < hits < 2700
