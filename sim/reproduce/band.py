@@ -398,7 +398,29 @@ def fig6_band_members(
         members += [Member(m, g, e) for e in EFFECTS for g in ("fixed", retune_how) for m in motors]
     else:
         members += [Member(Motor(), "fixed", e) for e in EFFECTS]
-    return members
+    return members + variant_copies(members, noise_copies)
+
+
+def is_variant(m: Member) -> bool:
+    """One thing at a time off the nominal bench: one motor factor off nominal (no effect),
+    or one effect on the nominal motor; fixed or re-tuned gains (the rows of REPORT.md's
+    one-at-a-time tables)."""
+    if m.gains == "model":
+        return False
+    if m.effect is None:
+        return m.motor in one_at_a_time()
+    return m.motor.nominal
+
+
+def variant_copies(members: Sequence[Member], noise_copies: int) -> list[Member]:
+    """Noise copies 1 .. ``noise_copies`` - 1 of every one-at-a-time variant among
+    ``members`` (copy 0): each variant is reported as mean ± sd, as the nominal member."""
+    return [
+        dataclasses.replace(m, copy=c)
+        for m in members
+        if m.copy == 0 and is_variant(m)
+        for c in range(1, noise_copies)
+    ]
 
 
 def fig6_band(
@@ -535,7 +557,7 @@ def effects_members(*, retune_how: str = "classic", noise_copies: int = 3) -> li
     members = [Member(gains=g, copy=c) for g in ("fixed", retune_how) for c in range(noise_copies)]
     members += [Member(m, g) for m in one_at_a_time() for g in ("fixed", retune_how)]
     members += [Member(effect=e) for e in EFFECTS]
-    return members
+    return members + variant_copies(members, noise_copies)
 
 
 @dataclass(frozen=True)
@@ -648,12 +670,49 @@ def _base(st: Study, metric: str, gains: str) -> tuple[float, float]:
     return mean, sd
 
 
+def _copies_of(st: Study, k: int) -> list[int]:
+    """Member ``k`` and its noise copies (the same motor, gains and effect)."""
+    m = st.members[k]
+    return st.select(motor=m.motor, gains=m.gains, effect=m.effect)
+
+
+def _variant(st: Study, metric: str, k: int) -> tuple[float, float]:
+    """Mean and standard deviation of ``metric`` over member ``k``'s noise copies (NaN
+    where none has a value; sd 0 for one)."""
+    mean, sd, _, _ = spread(st.values(metric, _copies_of(st, k)))
+    return mean, sd
+
+
+def _pm(mean: float, sd: float, n: int) -> str:
+    """``mean ± sd`` of a variant's ``n`` noise copies (the mean alone for one)."""
+    return _cell(mean, 4) if n < 2 or math.isnan(mean) else f"{_cell(mean, 4)} ± {_cell(sd, 2)}"
+
+
 def _moves(v: float, mean: float, sd: float) -> bool:
-    """Beyond the noise: more than 3 noise standard deviations and more than 2 % of the
-    nominal value (or defined for one of the two only)."""
+    """Beyond the noise: more than 3 standard deviations (``sd``: the variant's and the
+    nominal's noise together) and more than 2 % of the nominal value (or defined for one
+    of the two only)."""
     if math.isnan(v) or math.isnan(mean):
         return math.isnan(v) != math.isnan(mean)
     return abs(v - mean) > max(3.0 * sd, 0.02 * abs(mean), 1e-12)
+
+
+def _beyond(st: Study, metric: str, k: int) -> tuple[float, float, float, float, bool]:
+    """Variant ``k`` against the nominal member with its gains: (variant mean, sd, nominal
+    mean, sd, whether it moves beyond the noise)."""
+    v, v_sd = _variant(st, metric, k)
+    mean, sd = _base(st, metric, st.members[k].gains)
+    return v, v_sd, mean, sd, _moves(v, mean, math.hypot(sd, v_sd))
+
+
+def _fault_copies(st: Study, k: int) -> str:
+    """The first fault of member ``k``'s copies (with in how many, if not in all)."""
+    idx = _copies_of(st, k)
+    tripped = [j for j in idx if st.metrics[j]["fault code"]]
+    if not tripped:
+        return "none"
+    text = _fault(st.metrics[tripped[0]])
+    return text if len(tripped) == len(idx) else f"{text} (in {len(tripped)} of {len(idx)})"
 
 
 def _oat_rows(st: Study, headline: str) -> list[int]:
@@ -670,7 +729,7 @@ def _oat_rows(st: Study, headline: str) -> list[int]:
 
     def size(k: int) -> float:
         mean, _ = _base(st, headline, st.members[k].gains)
-        v = st.metrics[k][headline]
+        v, _ = _variant(st, headline, k)
         if st.metrics[k]["fault code"] or math.isnan(v) or math.isnan(mean):
             return math.inf
         return abs(v - mean) / max(abs(mean), 1e-12)
@@ -692,17 +751,17 @@ def _study_table(st: Study, metrics: Sequence[str], rows: Sequence[int]) -> list
                    + " | ".join(cells) + " | none |")  # fmt: skip
     for k in rows:
         mem = st.members[k]
+        n = len(_copies_of(st, k))
         cells = []
         for m in metrics:
-            v = st.metrics[k][m]
-            mean, sd = _base(st, m, mem.gains)
+            v, v_sd, mean, _, moves = _beyond(st, m, k)
             rel = ""
             tripped = bool(st.metrics[k]["fault code"])  # the fault column says why
             if not (tripped or math.isnan(v) or math.isnan(mean)) and mean != 0.0:
                 rel = f" ({100.0 * (v - mean) / abs(mean):+.0f} %)"
-            star = "**" if _moves(v, mean, sd) else ""
-            cells.append(f"{star}{_cell(v, 4)}{rel}{star}")
-        out.append("| " + " | ".join([mem.label, mem.gains, *cells, _fault(st.metrics[k])]) + " |")
+            star = "**" if moves else ""
+            cells.append(f"{star}{_pm(v, v_sd, n)}{rel}{star}")
+        out.append("| " + " | ".join([mem.label, mem.gains, *cells, _fault_copies(st, k)]) + " |")
     return out + [""]
 
 
@@ -713,11 +772,10 @@ def _summary(st: Study, metric: str, rows: Sequence[int], top: int = 5) -> str:
     for k in rows:
         mem = st.members[k]
         name = mem.label + ("" if mem.gains == "fixed" else f" ({mem.gains} gains)")
-        mean, sd = _base(st, metric, mem.gains)
-        v = st.metrics[k][metric]
+        v, _, mean, _, moves = _beyond(st, metric, k)
         if st.metrics[k]["fault code"]:
-            trips.append(f"{name} ({_fault(st.metrics[k])})")
-        elif _moves(v, mean, sd):
+            trips.append(f"{name} ({_fault_copies(st, k)})")
+        elif moves:
             moved.append(f"{name} {_cell(mean, 3)} → {_cell(v, 3)}")
         else:
             quiet.append(name)
@@ -809,11 +867,13 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
         "the config's gains); **model** = the feed-forward model of the member's own motor "
         f"(R, back-EMF, inertia), the config's gains; **{b.retune}** = that model and the "
         f"gains re-tuned for the member's motor by {how}. Each variant is compared with the "
-        "nominal motor under the same gains. Error bars: the nominal member run in "
-        f"{res.noise_copies} noise realisations (every member of a batch draws its own "
-        "encoder noise), mean ± standard deviation; each variant is one realisation, with "
-        "that standard deviation as its error bar. **Bold**: beyond 3 standard deviations "
-        "and 2 %. "
+        "nominal motor under the same gains. Error bars: the nominal member and every "
+        f"variant of the one-at-a-time tables run in {res.noise_copies} noise realisations "
+        "each (every member of a batch draws its own encoder noise): mean ± standard "
+        "deviation (a value without ± is NaN in some realisations, e.g. after a trip; the "
+        "band tables are medians and ranges over motors, copy 0 of each). **Bold**: the "
+        "variant's mean differs from the nominal's by more than 3 standard deviations (the "
+        "two spreads together) and 2 %. "
         + (
             "Fig. 7 and Fig. 8 ran in their --quick form (times / 4: positions / 16, "
             "velocities / 4), Fig. 6 as written. "
@@ -879,7 +939,8 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
     if bus:
         lines += [
             "The bus model without a brake chopper **locks the bridge out** (28 V) during "
-            f"the braking: the step overshoots by {_cell(st.metrics[bus[0]]['overshoot (deg)'])} "
+            "the braking: the step overshoots by "
+            f"{_pm(*_variant(st, 'overshoot (deg)', bus[0]), len(_copies_of(st, bus[0])))} "
             "deg. That is the bus model's verdict on a bench without a brake resistor, not "
             'a numerical artefact; the paper shows no brake. docs/model.md ("Supply and '
             "bus\") has the runs with a chopper and with the firmware's regenerative limit.",

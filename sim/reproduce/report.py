@@ -853,8 +853,9 @@ def _error_bars(inp: ReportInputs) -> list[str]:
         "printed as the mean ± the standard deviation over the realisations; ± 0 means "
         "measured with no spread (e.g. a time on the 2 ms tick grid). A number without ± is "
         f"exact by construction, and its column or sentence says which kind: {exact}, the "
-        "tick a command was applied in, or a count. Section 8's variants are single "
-        "realisations with the nominal member's spread as their error bar (said there).",
+        "tick a command was applied in, or a count. Section 8 runs its nominal member and "
+        "every variant of its one-at-a-time tables in as many realisations (mean ± sd "
+        "there too); its band tables are medians and ranges over motors, not noise.",
         "",
     ]
 

@@ -197,11 +197,17 @@ def test_the_de_retune_is_the_tuners_and_passes_its_gate():
 def test_the_full_study_members():
     full = band.fig6_band_members(design="factorial", noise_copies=5, effects_everywhere=True)
     n_eff = len(band.EFFECTS)
-    assert len(full) == 27 * 3 + 4 * 2 + 27 * 2 * n_eff
+    # + 4 more noise copies of each one-at-a-time variant: 6 motors and the effects on the
+    # nominal motor, fixed and re-tuned
+    assert len(full) == 27 * 3 + 4 * 2 + 27 * 2 * n_eff + 4 * (6 + n_eff) * 2
     assert len(set(full)) == len(full)
     cheap = band.fig6_band_members()
-    assert len(cheap) == 15 * 3 + 2 * 2 + n_eff
+    assert len(cheap) == 15 * 3 + 2 * 2 + n_eff + 2 * (6 * 2 + n_eff)
     assert {m.motor for m in cheap if m.effect} == {band.Motor()}
+    # every variant of the one-at-a-time tables in 3 noise realisations, as the nominal
+    variants = [m for m in cheap if band.is_variant(m)]
+    assert len(variants) == 3 * (6 * 2 + n_eff)
+    assert {m.copy for m in variants} == {0, 1, 2}
 
 
 def test_the_effects_table_names_the_faults_the_motors_tripped_with():
