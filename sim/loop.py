@@ -533,11 +533,6 @@ class Simulation:
         fw = self.fw
         if n_ticks < 0:
             return
-        if not fw._booted and n_ticks:  # the boot (the first reading): the firmware's Python
-            self._noise_rows = self._rows(n_ticks)
-            self._step()
-            self._noise_rows = BLOCK
-            n_ticks -= 1
         k_end = self.tick + n_ticks
         n = self.n
         keep = self._keep_log
@@ -564,6 +559,8 @@ class Simulation:
         flags[st.F_ENC_NOISY] = enc.noisy
         flags[st.F_ADC_NOISY] = self._adc_noisy
         flags[st.F_ENC_FAULT] = enc.faulty
+        # The boot (the first reading) stops the run before the observer: Firmware._boot.
+        flags[st.F_BOOT] = not fw._booted
         # At most a telemetry frame a tick and a heartbeat every heartbeat period.
         hb_ticks = fw._heartbeat_ticks
         heartbeats = n_ticks // hb_ticks + 1 if hb_ticks else 0
@@ -651,6 +648,9 @@ class Simulation:
                     fw._receive(rx)
                 else:
                     fw._silence()
+            elif code == st.STOP_BOOT:  # as Firmware.servo_tick does on its first reading
+                fw._boot(counts.copy())
+                flags[st.F_BOOT] = 0
             elif code == st.STOP_TRIP:
                 fw._check()
             elif code == st.STOP_TRANSMIT:
@@ -879,7 +879,7 @@ def warm_up(bench: BenchConfig, *, batch: int | None = None) -> None:
     install, with a message), so that a caller can time it apart from the run."""
     sim = Simulation(bench, batch=batch)
     with compile_notice():
-        sim.step(1)  # the boot tick: the firmware's and the plant's compiled steps
+        sim.step(1)  # the boot tick, in the compiled tick (STOP_BOOT)
         ftick.framer_ok()
         if sim._compiled:
             sim._run_compiled(0)  # the compiled tick, stopping at once

@@ -38,6 +38,8 @@ its place kept in ``ctx`` (tick, stage, current-loop period, plant member); the 
 ``STOP_UART``      the PC -> board line is busy: move its bytes (``EmulatedUart``)
 ``STOP_HEAT``      a winding reached a temperature without plant tables:
                    ``sim.thermal.Heat.make_group``
+``STOP_BOOT``      the first reading (``flags[F_BOOT]``), before the observer runs:
+                   ``Firmware._boot`` (resets the law on it, enables if configured)
 =================  ===========================================================
 """
 
@@ -85,9 +87,9 @@ __all__ = ["run_ticks"]
 
 (
     STOP_END, STOP_RX, STOP_TRIP, STOP_TRANSMIT, STOP_OC, STOP_MODE, STOP_NOISE, STOP_UART,
-    STOP_HEAT,
-) = range(9)  # fmt: skip
-TOP, SERVO, TICKUP, TRANSMIT, CURRENT, BRIDGE, PLANT, LOG = range(8)
+    STOP_HEAT, STOP_BOOT,
+) = range(10)  # fmt: skip
+TOP, ESTIMATE, SERVO, TICKUP, TRANSMIT, CURRENT, BRIDGE, PLANT, LOG = range(9)
 # ctx: where the run is and what it owes the caller.
 (
     CX_K, CX_STAGE, CX_PERIOD, CX_MEMBER, CX_TXLEN, CX_SHIFTED, CX_PENDING, CX_ENC_ROW,
@@ -97,9 +99,9 @@ N_CX = 14
 # flags: what the caller says about this run.
 (
     F_REPLIES, F_RX_PRESENT, F_RX_ACTIVE, F_FRAMER, F_KEEP, F_FIFO, F_FRAME_BYTES,
-    F_ENC_NOISY, F_ADC_NOISY, F_SILENCE_AT, F_ENC_FAULT,
-) = range(11)  # fmt: skip
-N_F = 11
+    F_ENC_NOISY, F_ADC_NOISY, F_SILENCE_AT, F_ENC_FAULT, F_BOOT,
+) = range(12)  # fmt: skip
+N_F = 12
 
 _pace = kernel(uart.pace)
 # servo_stage inlined into the tick (numba IR; one source, Firmware.servo_tick calls the plain
@@ -184,10 +186,16 @@ def run_ticks(
                     angle_frames, diag_frames,
                 )  # fmt: skip
                 as5048.check_reading(
-                    angle_frames, diag_frames, counts, C, diag_ticks, diag_errors, True
-                )
+                    angle_frames, diag_frames, counts, C, diag_ticks, diag_errors,
+                    flags[F_BOOT] == 0,
+                )  # fmt: skip
             else:
                 as5048.clear_diag(diag_ticks, diag_errors)
+            stage = ESTIMATE
+            if flags[F_BOOT]:
+                ctx[CX_STAGE] = ESTIMATE
+                return STOP_BOOT
+        if stage == ESTIMATE:
             law_steps.estimate(counts, P, C, S, G, K)
             stage = SERVO
             silence = flags[F_SILENCE_AT] >= 0 and fi[FI_TICK] >= flags[F_SILENCE_AT]

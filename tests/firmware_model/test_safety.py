@@ -351,13 +351,13 @@ def test_a_frozen_encoder_with_noise_on_it_is_flagged(v_dps, model, ticks, to_tr
 
 def test_the_compiled_tick_catches_a_noisy_freeze(monkeypatch):
     # The checks run inside sim/tick.py's multi-tick call: the Python per-tick path
-    # (Simulation._step) runs only the boot tick. Before, a run through the compiled path
-    # skipped the back-EMF check, the AS5048 frames and the brake.
+    # (Simulation._step) runs no tick, not even the boot (STOP_BOOT). Before, a run through
+    # the compiled path skipped the back-EMF check, the AS5048 frames and the brake.
     python_ticks = []
     step = Simulation._step
     monkeypatch.setattr(Simulation, "_step", lambda self: python_ticks.append(1) or step(self))
     log, k0, reports = _freeze_run("freeze", 100.0)
-    assert len(python_ticks) == 1  # the boot
+    assert len(python_ticks) == 0
     assert [r.fault for r in reports] == [Fault.SENSOR_MISMATCH]
     k = reports[0].tick
     # The brake ran in the compiled tick too: bridge on at duty 0, the current reversed.

@@ -379,3 +379,26 @@ def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
             want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense, noise * draw)
         np.testing.assert_array_equal(got, want)
     assert want.min() == 0 and want.max() == 4095
+
+
+@pytest.mark.parametrize("batch", [None, 2])
+def test_the_compiled_tick_runs_what_the_per_tick_python_path_runs(bench, batch):
+    """``run_ticks`` (every tick of a run, the boot included: ``STOP_BOOT``) against the
+    one-tick Python path (``Simulation._step``, taken with ``record_inputs``), with encoder
+    and ADC noise, a Hello and a Move arriving over the UART: the same log, bit for bit, and
+    the same bytes to the PC."""
+    noisy = {"encoder.noise_rms_lsb": 0.7, "current_sense.noise_rms_lsb": 1.5}
+    sims = [
+        Simulation(bench, batch=batch, seed=5, overrides=noisy, record_inputs=r)
+        for r in (False, True)
+    ]
+    assert sims[0]._compiled and not sims[1]._compiled
+    for s in sims:
+        s.step(7)
+        s.pc_write(OPEN + frame.encode(Move(1, 30.0, 300.0, 1000.0, session=1), 1))
+        s.step(300)
+    a, b = (s.log() for s in sims)
+    for name in LOG_FIELDS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+    pc = [s.pc_read() for s in sims]
+    assert pc[0] == pc[1] and len(pc[0]) > 1000
