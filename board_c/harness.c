@@ -160,6 +160,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.pos = (int32_t)v(t, ok); m.vel = (int32_t)v(t, ok);
         m.current_ma = (int16_t)v(t, ok); m.duty = (int16_t)v(t, ok);
         m.state = (uint8_t)v(t, ok); m.fault = (uint8_t)v(t, ok); m.fault_flags = v(t, ok);
+        m.bus_mv = (uint16_t)v(t, ok);
         return tt_encode_telemetry(p, &m);
     }
     case TT_ACK: {

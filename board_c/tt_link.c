@@ -417,6 +417,7 @@ size_t tt_encode_telemetry(uint8_t *out, const tt_telemetry *m)
     put_u8(out, &at, m->state);
     put_u8(out, &at, m->fault);
     put_u32(out, &at, m->fault_flags);
+    put_u16(out, &at, m->bus_mv);
     return at;
 }
 

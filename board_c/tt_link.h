@@ -166,6 +166,7 @@ typedef struct {
     int16_t current_ma, duty;         /* mA, 1e-4 */
     uint8_t state, fault;
     uint32_t fault_flags;
+    uint16_t bus_mv; /* appended: the measured bus voltage in mV, 0 = not measured */
 } tt_telemetry;
 
 typedef struct { uint16_t cmd_id; uint8_t msg_type; } tt_ack;

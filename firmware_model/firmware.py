@@ -1704,7 +1704,7 @@ class Firmware:
             duty = 0.0  # the bridge is off for the next period, whatever the law last said
         return frame.encode_telemetry_fields(
             self._seq, self.tick - 1, self.sp_pos_deg, self.sp_vel_dps, pos, vel, cur, duty,
-            state, fault, int(self._flags[0]) if fault else 0,
+            state, fault, int(self._flags[0]) if fault else 0, self._bus_mv() / frame.BUS_SCALE,
         )  # fmt: skip
 
 

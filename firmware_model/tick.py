@@ -364,16 +364,16 @@ def _put_crc(out, start, pos, crc, crc_table, crc_bytes):
 
 
 @kernel
-def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, tables):
+def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, bus, tables):
     """Write the telemetry frame of ``(tick, values = (sp_pos_deg, sp_vel_dps, pos_deg,
-    vel_dps, current_a, duty), state, fault, fault_flags)`` with sequence ``seq`` into
-    ``out[at:]``
+    vel_dps, current_a, duty), state, fault, fault_flags, bus)`` (``bus``: the bus
+    voltage's wire value, mV, :func:`bus_mv`) with sequence ``seq`` into ``out[at:]``
     (values beyond the wire range saturate, as ``frame.encode_telemetry_fields``).
     ``tables``: :data:`TABLES`, serial_protocol's (passed in, not frozen into the compiled
     code, so that a new frame format is never served from numba's cache). Returns the
     index after the frame, or -1 for a NaN (which ``frame`` refuses)."""
     heads, head_crc, crc_table, size, scale, lo, hi, widths = tables
-    head_bytes, crc_bytes, flag_bytes = widths[0], widths[1], widths[2]
+    head_bytes, crc_bytes, flag_bytes, bus_bytes = widths[0], widths[1], widths[2], widths[3]
     start = _put_head(out, at, heads[seq], head_bytes)
     pos = _put(out, start, tick & 0xFFFFFFFF, 4)
     for f in range(6):
@@ -385,6 +385,7 @@ def frame_telemetry(out, at, seq, tick, values, state, fault, fault_flags, table
     out[pos] = state
     out[pos + 1] = fault
     pos = _put(out, pos + 2, fault_flags & 0xFFFFFFFF, flag_bytes)
+    pos = _put(out, pos, min(max(bus, 0), 0xFFFF), bus_bytes)
     return _put_crc(out, start, pos, head_crc[seq], crc_table, crc_bytes)
 
 
@@ -445,7 +446,10 @@ def frame_heartbeat(out, at, free, seq, fs, fi, enabled, fault, fault_flags, C, 
 #: The tables ``frame_telemetry`` takes, from ``serial_protocol.frame``.
 TABLES = (
     *_head_tables(Telemetry), _CRC_TABLE, _FIELD_SIZE, _FIELD_SCALE, _FIELD_LO, _FIELD_HI,
-    np.array([_HEAD_BYTES, _CRC_BYTES, 4 if _FMT.endswith("BBI") else 0], dtype=np.int64),
+    np.array(
+        [_HEAD_BYTES, _CRC_BYTES, 4 if "BBI" in _FMT else 0, 2 if _FMT.endswith("BBIH") else 0],
+        dtype=np.int64,
+    ),
 )  # fmt: skip
 #: The tables ``frame_wire`` takes for a ``BoardHeartbeat``, from ``serial_protocol.frame``.
 HEARTBEAT_TABLES = (
@@ -461,17 +465,19 @@ HEARTBEAT_TABLES = (
 
 def _framer_ok() -> bool:
     """Whether ``frame_telemetry`` writes what ``frame.encode_telemetry_fields`` writes."""
-    if _FMT not in ("IiiiihhBB", "IiiiihhBBI") or _CRC_BYTES not in (2, 4) or len(_SAT) != 6:
+    formats = ("IiiiihhBB", "IiiiihhBBI", "IiiiihhBBIH")
+    if _FMT not in formats or _CRC_BYTES not in (2, 4) or len(_SAT) != 6:
         return False
-    flags = _FMT.endswith("I")
+    flags, bus = "BBI" in _FMT, _FMT.endswith("H")
     rng = np.random.default_rng(1)
     out = np.zeros(frame.TELEMETRY_FRAME_BYTES, dtype=np.uint8)
     for k in range(64):
         values = rng.normal(0.0, [1e3, 1e3, 1e3, 1e3, 3.0, 0.5]) * (1e6 if k % 9 == 0 else 1)
         seq, tick, state, fault = k * 37 % 256, int(rng.integers(0, 1 << 33)), k % 5, k % 6
         bits = int(rng.integers(0, 1 << 32)) if flags else 0
-        end = frame_telemetry(out, 0, seq, tick, values, state, fault, bits, TABLES)
-        extra = (bits,) if flags else ()
+        mv = int(rng.integers(0, 1 << 16)) if bus else 0
+        end = frame_telemetry(out, 0, seq, tick, values, state, fault, bits, mv, TABLES)
+        extra = (bits, mv / frame.BUS_SCALE)[: flags + bus]
         want = frame.encode_telemetry_fields(seq, tick, *values.tolist(), state, fault, *extra)
         if end != len(want) or bytes(out[:end]) != want:
             return False

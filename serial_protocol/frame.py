@@ -128,7 +128,7 @@ POS_SCALE = 10_000.0  # 1 LSB = 1e-4 deg
 VEL_SCALE = 10_000.0  # 1 LSB = 1e-4 deg/s
 CURRENT_SCALE = 1_000.0  # 1 LSB = 1 mA
 DUTY_SCALE = 10_000.0  # 1 LSB = 1e-4 of full duty
-BUS_SCALE = 1_000.0  # 1 LSB = 1 mV (BoardHeartbeat.bus_voltage_v)
+BUS_SCALE = 1_000.0  # 1 LSB = 1 mV (Telemetry's and BoardHeartbeat's bus_voltage_v)
 
 
 def _crc8_table() -> bytes:
@@ -350,6 +350,14 @@ _ROWS: tuple[_Row, ...] = (
             _STATE_F,
             _FAULT_F,
             _FLAGS_F,
+            _f(
+                "bus_voltage_v",
+                "u16",
+                "V",
+                "measured bus voltage, 1 LSB = 1 mV; 0 = not measured",
+                scale=BUS_SCALE,
+                appended=True,
+            ),
         ),
     ),
     _Row(
@@ -598,6 +606,7 @@ def _telemetry_from_wire(t: tuple) -> Telemetry:
         _STATE[t[7]],
         _FAULT[t[8]],
         t[9],
+        t[10] / BUS_SCALE,
     )
 
 
@@ -764,6 +773,9 @@ _TELEMETRY_HDR = _TELEMETRY.hdr_by_seq
 _TELEMETRY_LEN = _TELEMETRY.payload.size
 _TELEMETRY_TYPE = _TELEMETRY.msg_type
 _TELEMETRY_UNPACK = _TELEMETRY.payload.unpack_from
+# The payload lengths of an older board's telemetry (without the appended fields).
+_TELEMETRY_SHORT = _TELEMETRY.short_sizes
+_TELEMETRY_SHORT_NP = np.array(sorted(_TELEMETRY_SHORT), dtype=np.int64)
 # Per sequence number: the header bytes and the CRC register after them (frame_heads).
 _TELEMETRY_HEADS = frame_heads(Telemetry)
 # (field, scale, lowest, highest wire value) of the saturating fields, in wire order
@@ -775,6 +787,8 @@ _TELEMETRY_SATURATION = (
     ("current_a", CURRENT_SCALE, -(2**15), 2**15 - 1),
     ("duty", DUTY_SCALE, -(2**15), 2**15 - 1),
 )
+# ... and of the appended bus voltage (after the state, fault and fault flags)
+_TELEMETRY_BUS_SATURATION = (BUS_SCALE, 0, 0xFFFF)
 
 
 def encode_telemetry_fields(
@@ -789,6 +803,7 @@ def encode_telemetry_fields(
     state: int,
     fault: int,
     fault_flags: int = 0,
+    bus_voltage_v: float = 0.0,
 ) -> bytes:
     """Frame one telemetry message from its fields, without building a ``Telemetry``.
 
@@ -808,11 +823,12 @@ def encode_telemetry_fields(
             state,
             fault,
             fault_flags,
+            round(bus_voltage_v * BUS_SCALE),
         )
     except (struct.error, ValueError, OverflowError, TypeError):
         msg = Telemetry(
             tick, sp_pos_deg, sp_vel_dps, pos_deg, vel_dps, current_a, duty, state, fault,  # type: ignore[arg-type]
-            fault_flags,
+            fault_flags, bus_voltage_v,
         )  # fmt: skip
         return _encode_telemetry_saturated(msg, seq)
     # The header of each sequence number and the CRC over it are constants (_TELEMETRY_HEADS).
@@ -833,21 +849,27 @@ def _encode_telemetry(msg: Telemetry, seq: int) -> bytes:
         msg.state,
         msg.fault,
         msg.fault_flags,
+        msg.bus_voltage_v,
     )
+
+
+def _saturated(msg: Telemetry, name: str, scale: float, low: int, high: int) -> int:
+    value = float(getattr(msg, name))
+    if math.isnan(value):
+        raise ValueError(f"Telemetry.{name} = nan: telemetry must be finite")
+    return round(min(max(value * scale, low), high))
 
 
 def _encode_telemetry_saturated(msg: Telemetry, seq: int) -> bytes:
     """Slow path: values beyond the wire range saturate (documented); NaN raises."""
     wire = [int(msg.tick) & 0xFFFFFFFF]
     for name, scale, low, high in _TELEMETRY_SATURATION:
-        value = float(getattr(msg, name))
-        if math.isnan(value):
-            raise ValueError(f"Telemetry.{name} = nan: telemetry must be finite")
-        wire.append(round(min(max(value * scale, low), high)))
+        wire.append(_saturated(msg, name, scale, low, high))
+    bus = _saturated(msg, "bus_voltage_v", *_TELEMETRY_BUS_SATURATION)
     try:
         head = _TELEMETRY.frame.pack(
             0xA5, 0x5A, _TELEMETRY_LEN, _TELEMETRY_TYPE, seq, _TELEMETRY_HDR[seq],
-            *wire, msg.state, msg.fault, msg.fault_flags,
+            *wire, msg.state, msg.fault, msg.fault_flags, bus,
         )  # fmt: skip
     except struct.error:
         _diagnose(_TELEMETRY, msg)
@@ -1170,8 +1192,11 @@ class Decoder:
                 self.frames_missed += (seq - last - 1) & 0xFF
             self.last_seq = seq
             msg_type = buf[i + 3]
-            if msg_type == _TELEMETRY_TYPE and length >= _TELEMETRY_LEN:
-                # Fast path of _decode for the frame the board sends every tick.
+            if msg_type == _TELEMETRY_TYPE and (
+                length >= _TELEMETRY_LEN or length in _TELEMETRY_SHORT
+            ):
+                # Fast path of _decode for the frame the board sends every tick (an older
+                # board's shorter one too, as columns).
                 if offsets is not None:
                     if buf[i + _STATE_AT] in _STATE and buf[i + _FAULT_AT] in _FAULT:
                         offsets.append(i + HEADER_BYTES)
@@ -1181,9 +1206,10 @@ class Decoder:
                     i = end
                     continue
                 try:
-                    append(_telemetry_from_wire(_TELEMETRY_UNPACK(buf, i + HEADER_BYTES)))
-                    i = end
-                    continue
+                    if length >= _TELEMETRY_LEN:
+                        append(_telemetry_from_wire(_TELEMETRY_UNPACK(buf, i + HEADER_BYTES)))
+                        i = end
+                        continue
                 except KeyError:
                     pass  # a state or fault code out of range: _decode makes it Malformed
             append(self._decode(msg_type, seq, buf, i + HEADER_BYTES, length))
@@ -1220,7 +1246,9 @@ class Decoder:
         self.seq_gaps += int(gaps.sum())
         self.frames_missed += int(missed.sum())
         self.last_seq = int(seqs[-1])
-        tel = (types == _TELEMETRY_TYPE) & (lengths >= _TELEMETRY_LEN)
+        tel = (types == _TELEMETRY_TYPE) & (
+            (lengths >= _TELEMETRY_LEN) | np.isin(lengths, _TELEMETRY_SHORT_NP)
+        )
         at = starts[tel]
         tel[tel] = _STATE_OK[raw[at + _STATE_AT]] & _FAULT_OK[raw[at + _FAULT_AT]]
         del raw  # the view: buf must not stay exported (the caller trims it)
@@ -1240,12 +1268,12 @@ class Decoder:
         return msg
 
 
-# The telemetry payload as a numpy record (the struct format "<IiiiihhBBI"), and where its
+# The telemetry payload as a numpy record (the struct format "<IiiiihhBBIH"), and where its
 # state and fault bytes sit in a frame.
 _TELEMETRY_DTYPE = np.dtype(
     [("tick", "<u4"), ("sp_pos", "<i4"), ("sp_vel", "<i4"), ("pos", "<i4"), ("vel", "<i4"),
      ("current", "<i2"), ("duty", "<i2"), ("state", "u1"), ("fault", "u1"),
-     ("fault_flags", "<u4")]
+     ("fault_flags", "<u4"), ("bus_voltage", "<u2")]
 )  # fmt: skip
 _STATE_AT = HEADER_BYTES + _TELEMETRY_DTYPE.fields["state"][1]
 _FAULT_AT = HEADER_BYTES + _TELEMETRY_DTYPE.fields["fault"][1]
@@ -1355,19 +1383,30 @@ def _bulk_frames(buf: bytearray, i: int, n: int) -> tuple[np.ndarray, np.ndarray
 
 
 def _telemetry_columns(buf: bytearray, offsets: list[int]) -> dict[str, np.ndarray]:
-    """The telemetry payloads at ``offsets`` in ``buf`` as columns (``feed_columns``)."""
+    """The telemetry payloads at ``offsets`` in ``buf`` as columns (``feed_columns``); an
+    older board's shorter payload reads its missing appended fields as 0."""
     size = _TELEMETRY_DTYPE.itemsize
     at = np.fromiter(offsets, dtype=np.intp, count=len(offsets))
     # A view, not a copy: the gather below copies, and the view is gone before the caller
     # trims buf (a bytearray cannot be resized while a buffer of it is exported).
     raw = np.frombuffer(buf, dtype=np.uint8)
-    rec = raw[at[:, None] + np.arange(size)].copy().view(_TELEMETRY_DTYPE).reshape(-1)
+    lengths = raw[at - HEADER_BYTES + 2]  # each frame's length byte
+    index = at[:, None] + np.arange(size)
+    short = lengths < size
+    if short.any():
+        np.minimum(index, raw.shape[0] - 1, out=index)
+    rows = raw[index]
+    if short.any():
+        rows[np.arange(size) >= lengths[:, None]] = 0
+    del raw, lengths
+    rec = rows.view(_TELEMETRY_DTYPE).reshape(-1)
     columns = {"tick": rec["tick"].astype(np.int64)}
     for name, field, scale in _TELEMETRY_COLUMNS:
         columns[name] = rec[field] / scale
     columns["state"] = rec["state"].astype(np.int64)
     columns["fault"] = rec["fault"].astype(np.int64)
     columns["fault_flags"] = rec["fault_flags"].astype(np.int64)
+    columns["bus_voltage_v"] = rec["bus_voltage"] / BUS_SCALE
     return columns
 
 

@@ -198,6 +198,15 @@ class BoardClient:
         self._jog_heartbeat_s: float | None = None  # keeps an accepted jog's timeout fed
         self._last_sent_wall_s = -math.inf
 
+    @property
+    def bus_voltage_v(self) -> float:
+        """The bus voltage the board last reported (V): in its latest telemetry frame, else
+        (an older board, whose telemetry does not carry it) in its latest
+        ``BoardHeartbeat``; 0 before either."""
+        if self.telemetry and self.telemetry[-1].bus_voltage_v:
+            return self.telemetry[-1].bus_voltage_v
+        return self.last_heartbeat.bus_voltage_v if self.last_heartbeat is not None else 0.0
+
     # ------------------------------------------------------------------ session
 
     def open(self, session: int | None = None) -> HelloReply | Nack:

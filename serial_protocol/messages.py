@@ -602,7 +602,9 @@ class Telemetry:
     ``sp_*`` is the planner's setpoint, the others are measured/estimated. ``duty`` is the
     PWM duty in [-1, 1] the bridge applies for the next period (0 when the state is
     ``DISABLED`` or ``FAULT``). ``fault`` is the first latched fault, ``fault_flags`` all
-    of them (``FaultFlag`` bits).
+    of them (``FaultFlag`` bits). ``bus_voltage_v`` is the bus voltage the board measures
+    (V, 1 mV steps; appended by the extension rule: 0 from an older board, or from one
+    without a bus measurement), as ``BoardHeartbeat.bus_voltage_v`` but every frame.
     """
 
     MSG_TYPE: ClassVar[int] = MsgType.TELEMETRY
@@ -616,6 +618,8 @@ class Telemetry:
     state: State
     fault: Fault
     fault_flags: int
+    # Appended (extension rule): the measured bus voltage (V; 0 = not reported).
+    bus_voltage_v: float
 
     def __init__(
         self,
@@ -629,12 +633,13 @@ class Telemetry:
         state: State,
         fault: Fault,
         fault_flags: int = 0,
+        bus_voltage_v: float = 0.0,
     ) -> None:
         # Built every tick by the board and again by the PC: the dataclass's frozen __init__
         # goes through object.__setattr__ per field (about 2 us for ten); writing the slots
         # through their descriptors builds the same immutable object in about a third.
         (s_tick, s_sp_pos, s_sp_vel, s_pos, s_vel, s_cur, s_duty, s_state, s_fault,
-         s_flags) = _TEL_SLOTS  # fmt: skip
+         s_flags, s_bus) = _TEL_SLOTS  # fmt: skip
         s_tick(self, tick)
         s_sp_pos(self, sp_pos_deg)
         s_sp_vel(self, sp_vel_dps)
@@ -645,6 +650,7 @@ class Telemetry:
         s_state(self, state)
         s_fault(self, fault)
         s_flags(self, fault_flags)
+        s_bus(self, bus_voltage_v)
 
 
 # slot descriptors of the class dataclass(slots=True) returned, in field order

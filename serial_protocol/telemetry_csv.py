@@ -4,7 +4,9 @@ Columns: ``t_s`` (tick / tick_hz, the board's clock) then the ``Telemetry`` fiel
 unit suffixes; ``state`` and ``fault`` are written by name. The message's ``current_a`` (the
 board's reading of the IS pin) is the column ``current_meas_a``, the name the simulator's
 ``log.csv`` gives the same reading (its ``true_current_a`` is the plant's true current, which
-no board can send).
+no board can send). ``bus_voltage_v``, the bus voltage the board measured (0 from an older
+board that does not send it), is the last column: a reader that looks columns up by name
+reads older files without it (``sim.runfile``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ TELEMETRY_CSV_COLUMNS = (
     "duty",
     "state",
     "fault",
+    "bus_voltage_v",
 )
 
 
@@ -55,6 +58,7 @@ class TelemetryCsvWriter:
                 repr(msg.duty),
                 State(msg.state).name,
                 Fault(msg.fault).name,
+                repr(msg.bus_voltage_v),
             )
         )
         self.rows += 1

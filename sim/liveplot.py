@@ -27,7 +27,7 @@ from matplotlib.figure import Figure
 __all__ = ["COLUMNS", "LiveBuffer", "LivePlot", "LiveWindow", "has_display"]
 
 #: The telemetry fields kept, in column order (``t_s`` = tick / tick_hz, unwrapped).
-COLUMNS = ("t_s", "sp_pos_deg", "sp_vel_dps", "pos_deg", "vel_dps", "current_a")
+COLUMNS = ("t_s", "sp_pos_deg", "sp_vel_dps", "pos_deg", "vel_dps", "current_a", "bus_voltage_v")
 
 #: At most this many points per line are drawn (min/max pairs keep the peaks visible).
 MAX_POINTS = 1500
@@ -69,6 +69,8 @@ class LiveBuffer:
             d[3, row] = msg.pos_deg
             d[4, row] = msg.vel_dps
             d[5, row] = msg.current_a
+            # 0 from a board that does not send it (an older one)
+            d[6, row] = getattr(msg, "bus_voltage_v", 0.0)
             self.received += 1
 
     def __call__(self, msg: Any) -> None:
@@ -138,11 +140,13 @@ class LivePlot:
         if figure is None:
             from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-            figure = Figure(figsize=(9, 7))
+            figure = Figure(figsize=(9, 8.5))
             FigureCanvasAgg(figure)
         self.fig = figure
-        ax_v, ax_p, ax_i = self.fig.subplots(3, 1, sharex=True)
-        self.axes = (ax_v, ax_p, ax_i)
+        ax_v, ax_p, ax_i, ax_b = self.fig.subplots(
+            4, 1, sharex=True, gridspec_kw={"height_ratios": (1.0, 1.0, 1.0, 0.6)}
+        )
+        self.axes = (ax_v, ax_p, ax_i, ax_b)
         style = {"animated": True}
         # measured wide and translucent, planned thin on top: both stay visible
         wide = {"lw": 3.0, "alpha": 0.5, "color": "tab:blue", **style}
@@ -151,15 +155,22 @@ class LivePlot:
         (pos,) = ax_p.plot([], [], label="measured", **wide)
         (sp_pos,) = ax_p.plot([], [], "--", color="black", lw=0.9, label="planned", **style)
         (cur,) = ax_i.plot([], [], color="tab:red", lw=0.9, label="IS pin", **style)
+        (bus,) = ax_b.plot([], [], color="tab:green", lw=0.9, label="bus", **style)
         # drawn in this order
         self._lines = ((vel, "vel_dps"), (sp_vel, "sp_vel_dps"), (pos, "pos_deg"),
-                       (sp_pos, "sp_pos_deg"), (cur, "current_a"))  # fmt: skip
-        self._panels = (("sp_vel_dps", "vel_dps"), ("sp_pos_deg", "pos_deg"), ("current_a",))
+                       (sp_pos, "sp_pos_deg"), (cur, "current_a"),
+                       (bus, "bus_voltage_v"))  # fmt: skip
+        self._panels = (("sp_vel_dps", "vel_dps"), ("sp_pos_deg", "pos_deg"), ("current_a",),
+                        ("bus_voltage_v",))  # fmt: skip
+        # The smallest y span per panel: a steady bus (24.000 V) is drawn on a 1 V scale.
+        self._min_span = (1e-3, 1e-3, 1e-3, 1.0)
         ax_v.set_ylabel("output shaft\nvelocity (°/s)")
         ax_p.set_ylabel("output shaft\nposition (°)")
         ax_i.set_ylabel("motor current (A)")
-        ax_i.set_xlabel("time before the latest frame (s)")
-        ax_i.set_xlim(-window_s, 0.0)
+        ax_b.set_ylabel("bus voltage (V)\n(0: not sent)")
+        ax_b.ticklabel_format(axis="y", useOffset=False)
+        ax_b.set_xlabel("time before the latest frame (s)")
+        ax_b.set_xlim(-window_s, 0.0)
         for ax in self.axes:
             ax.grid(True, alpha=0.3)
             ax.set_ylim(-1.0, 1.0)
@@ -195,11 +206,11 @@ class LivePlot:
             x = t - t[-1]
             for line, name in self._lines:
                 line.set_data(*_reduce(x, w[name], MAX_POINTS))
-            for ax, names in zip(self.axes, self._panels, strict=True):
+            for ax, names, min_span in zip(self.axes, self._panels, self._min_span, strict=True):
                 lo = min(float(w[n].min()) for n in names)
                 hi = max(float(w[n].max()) for n in names)
                 y0, y1 = ax.get_ylim()
-                span = max(hi - lo, 1e-3)
+                span = max(hi - lo, min_span)
                 # Grow with room to spare (a ramp would otherwise force a full render per
                 # frame); shrink only when the data fill less than a quarter of the axis.
                 if may_rescale and (lo < y0 or hi > y1 or span < (y1 - y0) / 4.0):

@@ -10,7 +10,9 @@ Recognised, by content (not by name, except python-can's log formats):
 * a CAN log (``.asc``, ``.blf``, ``.trc``), reassembled as ``decode`` does.
 
 Each gives a ``sim.reproduce.experiments.Trace`` (measured current = the IS-pin reading the
-board reports). A file with no telemetry in it is an error naming the file.
+board reports; the bus voltage the board reports in its telemetry, or a ``log.csv``'s
+``bus_v``; none from a file or a board without it). A file with no telemetry in it is an
+error naming the file.
 """
 
 from __future__ import annotations
@@ -93,6 +95,7 @@ def _trace(name: str, c: dict[str, np.ndarray], tick_hz: float) -> Trace:
         replies=empty,
         true_t_s=c.get("true_t_s", np.zeros(0)),
         true_current_a=c.get("true_current_a", np.zeros(0)),
+        bus_voltage_v=c.get("bus_voltage_v", np.zeros(0)),
     )
 
 
@@ -126,6 +129,11 @@ def _from_csv(path: Path, kind: str) -> dict[str, np.ndarray]:
         "state": code("state", State),
         "fault": code("fault", Fault),
     }
+    # appended column: older telemetry CSVs have none
+    for name in ("bus_voltage_v", "bus_v") if kind == "log_csv" else ("bus_voltage_v",):
+        if name in rows[0]:
+            out["bus_voltage_v"] = col(name)
+            break
     if kind == "log_csv":
         out["true_t_s"] = out["t_s"]
         out["true_current_a"] = col("true_current_a", "current_a")
@@ -176,4 +184,5 @@ def _from_messages(messages: list, tick_hz: float) -> dict[str, np.ndarray]:
     out["current_meas_a"] = np.array([m.current_a for m in tel], dtype=float)
     out["state"] = np.array([int(m.state) for m in tel])
     out["fault"] = np.array([int(m.fault) for m in tel])
+    out["bus_voltage_v"] = np.array([m.bus_voltage_v for m in tel], dtype=float)
     return out

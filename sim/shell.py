@@ -436,10 +436,12 @@ def status_text(
     msg: Telemetry | None, width: int = TOOLBAR_COLUMNS, bus_voltage_v: float = 0.0
 ) -> str:
     """The toolbar line for the latest telemetry (at most ``width`` characters), with the
-    bus voltage of the latest ``BoardHeartbeat`` (``bus_voltage_v``; 0: none reported)."""
+    bus voltage it carries, or else (an older board's telemetry) that of the latest
+    ``BoardHeartbeat`` (``bus_voltage_v``; 0: none reported)."""
     if msg is None:
         return "no telemetry yet ('telemetry 1' asks for it)"[:width]
     fault = "" if msg.fault == Fault.NONE else f" {_name(Fault, msg.fault)}"
+    bus_voltage_v = getattr(msg, "bus_voltage_v", 0.0) or bus_voltage_v
     bus = f" {bus_voltage_v:4.1f}V" if bus_voltage_v > 0.0 else ""
     text = (
         f"{_name(State, msg.state):<8} pos {msg.pos_deg:>10.2f}° sp {msg.sp_pos_deg:>10.2f}° "

@@ -71,6 +71,7 @@ from firmware_model.tick import (
     FS_SP_POS,
     FS_SP_VEL,
     SF_BUS_TICKS,
+    bus_mv,
     current_stage,
     frame_heartbeat,
     frame_telemetry,
@@ -246,7 +247,7 @@ def run_ticks(
                     end = frame_telemetry(
                         txbuf, at, fi[FI_SEQ], fi[FI_TICK] - 1, values,
                         state_of(0, fi, enabled, fault), fault[0],
-                        fault_flags[0] if fault[0] else 0, tel_tables,
+                        fault_flags[0] if fault[0] else 0, bus_mv(C, fs), tel_tables,
                     )  # fmt: skip
                     if end < 0:  # NaN: frame refuses it, the firmware's Python says so
                         ctx[CX_STAGE] = CURRENT

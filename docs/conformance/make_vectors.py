@@ -168,7 +168,8 @@ FRAMES: list[tuple[str, Any, int]] = [
     (
         "telemetry",
         Telemetry(
-            123456, 3000.0, 990.0, 2999.9876, 989.5, 1.234, -0.5678, State.MOVING, Fault.NONE, 0
+            123456, 3000.0, 990.0, 2999.9876, 989.5, 1.234, -0.5678, State.MOVING, Fault.NONE, 0,
+            24.517,
         ),
         1,
     ),  # fmt: skip
@@ -185,6 +186,7 @@ FRAMES: list[tuple[str, Any, int]] = [
             State.FAULT,
             Fault.OVER_CURRENT,
             0x00000001,
+            65.535,
         ),
         255,
     ),  # fmt: skip
@@ -261,6 +263,10 @@ def streams() -> list[dict[str, Any]]:
     hb_type, hb_payload = frame.encode_payload(heartbeat)
     old_heartbeat = frame.frame_raw(hb_type, hb_payload[:-2], 16)
     inside = frame.frame_raw(hb_type, hb_payload[:-1], 16)
+    # ... and an older board's Telemetry, without the appended bus_voltage_v (2 bytes)
+    telemetry = next(msg for name, msg, _ in FRAMES if name == "telemetry")
+    tel_type, tel_payload = frame.encode_payload(telemetry)
+    old_telemetry = frame.frame_raw(tel_type, tel_payload[:-2], 1)
 
     def counters(**kw: int) -> dict[str, int]:
         return {**zero, **kw}
@@ -298,6 +304,11 @@ def streams() -> list[dict[str, Any]]:
          "flush": False,
          "messages": [{"type": "BoardHeartbeat",
                        "fields": {**_fields(heartbeat), "bus_voltage_v": 0.0}}],
+         "counters": counters(frames=1), "pending_bytes": 0},
+        {"name": "older_board_telemetry_without_bus_voltage", "hex": old_telemetry.hex(),
+         "flush": False,
+         "messages": [{"type": "Telemetry",
+                       "fields": {**_fields(telemetry), "bus_voltage_v": 0.0}}],
          "counters": counters(frames=1), "pending_bytes": 0},
         {"name": "payload_ending_inside_an_appended_field_is_malformed",
          "hex": inside.hex(), "flush": False,

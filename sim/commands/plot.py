@@ -51,6 +51,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="add the planned acceleration and jerk panel",
     )
+    parser.add_argument(
+        "--no-bus",
+        action="store_true",
+        help="leave out the measured bus voltage (drawn on the current panel's right axis "
+        "when the file carries it)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:
@@ -87,6 +93,7 @@ def main(args: argparse.Namespace) -> int:
         title=title,
         current_limit_a=args.current_limit,
         acceleration=args.acceleration,
+        bus=not args.no_bus,
         pos_scale=1.0,
         pos_label="output shaft\nposition (°)",
         note="Measured: the board's velocity estimate and IS-pin current. " + SHAFT_NOTE,

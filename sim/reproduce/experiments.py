@@ -140,6 +140,8 @@ class Trace:
         link: UART and decoder counters (``sim.loop.RunResult.link``).
         true_current_a, true_t_s: the simulator's true armature current per tick (not on
             the wire; for the cross-check of the IS-pin reading).
+        bus_voltage_v: the bus voltage the board measured, per frame (``(n_frames,)``; 0
+            from a board that does not send it; empty when not known).
     """
 
     name: str
@@ -160,6 +162,7 @@ class Trace:
     link: dict[str, int] = field(default_factory=dict)
     true_t_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
     true_current_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    bus_voltage_v: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def nacks(self) -> tuple[Nack, ...]:
@@ -240,6 +243,7 @@ def trace_from_result(name: str, exp: Experiment, result: RunResult) -> Trace:
         link=dict(result.link),
         true_t_s=np.asarray(log.t_s, dtype=float),
         true_current_a=np.asarray(log.current_a, dtype=float),
+        bus_voltage_v=np.asarray(tel["bus_voltage_v"], dtype=float),
     )
 
 
@@ -257,8 +261,8 @@ def trace_from_log(
     wire's steps (1e-4 deg, 1e-4 deg/s, 1 mA, 1e-4 duty); the current and duty of the frame
     of tick k are tick k-1's (the frame is built before the tick's current loop; 0 in the
     first), so member 0's trace is its decoded telemetry value for value. ``ticks``: the
-    ticks to keep (those the PC decoded; default every tick). No replies and no link
-    counters."""
+    ticks to keep (those the PC decoded; default every tick). No replies, no link
+    counters and no bus voltage (the log holds the plant's, not the board's reading)."""
     from serial_protocol.frame import CURRENT_SCALE, DUTY_SCALE, POS_SCALE, VEL_SCALE
 
     dt_s = exp.bench.dt_s
@@ -382,6 +386,7 @@ def write_telemetry_csv(trace: Trace, path: Any) -> Any:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     ticks = np.round(trace.t_s / trace.dt_s).astype(np.int64)
+    bus = trace.bus_voltage_v if len(trace.bus_voltage_v) == len(ticks) else np.zeros(len(ticks))
     with open(path, "w", newline="", encoding="utf-8") as fh:
         writer = TelemetryCsvWriter(fh, tick_hz=1.0 / trace.dt_s)
         for k in range(len(ticks)):
@@ -396,6 +401,8 @@ def write_telemetry_csv(trace: Trace, path: Any) -> Any:
                     float(trace.duty[k]),
                     State(int(trace.state[k])),
                     Fault(int(trace.fault[k])),
+                    0,
+                    float(bus[k]),
                 )
             )
     return path

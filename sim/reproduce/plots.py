@@ -75,6 +75,7 @@ ERR_LABEL = "measured − planned\nvelocity (°/s)"
 ACC_LABEL = "planned\nacceleration (°/s$^2$)"
 JERK_LABEL = "planned jerk (°/s$^3$)"
 CURRENT_LABEL = "motor current (A)\n(IS pin, decoded)"
+BUS_LABEL = "bus voltage (V)\n(measured, decoded)"
 SHAFT_NOTE = "Shaft: the gearmotor output shaft (motor / 80; the platter turns 5 times slower)."
 
 
@@ -151,13 +152,16 @@ def paper_figure(
     pos_scale: float = 1000.0,
     pos_label: str = "output shaft position\n(10$^3$ °)",
     acceleration: bool = False,
+    bus: bool = False,
     dpi: int = 110,
 ) -> Figure:
     """The paper-style figure: velocity (planned dashed, measured solid), velocity error,
     [planned acceleration and jerk,] position (divided by ``pos_scale``), current.
 
     ``shade = (t0, t1, text)`` greys a time span (e.g. a run-up); ``points`` are reference
-    values crossed on the velocity panel; ``current_limit_a`` draws the firmware's limit.
+    values crossed on the velocity panel; ``current_limit_a`` draws the firmware's limit;
+    ``bus`` adds the measured bus voltage on the current panel's right axis (dotted) for the
+    curves whose trace carries one (``Trace.bus_voltage_v``, not all 0).
     Several curves overlay (one colour each); a curve drawn later is thinner, so that one
     that coincides with an earlier one leaves it visible. Returns the figure; saves it to
     ``path`` if given (format by extension).
@@ -207,6 +211,20 @@ def paper_figure(
                 Line2D([], [], color="0.3", lw=0.7, ls=":", label="jerk (right axis)"),
             ],
             loc="upper right", fontsize="x-small", framealpha=0.9,
+        )  # fmt: skip
+    with_bus = [c for c in curves if bus and np.any(c.trace.bus_voltage_v)]
+    if with_bus:
+        ax_b = ax_i.twinx()
+        for c in with_bus:
+            t, volts = c.trace.t_s - c.t_offset_s, c.trace.bus_voltage_v
+            ax_b.plot(t, volts, color=c.color, lw=0.9, ls=":")
+        ax_b.set_ylabel(BUS_LABEL)
+        ax_i.legend(
+            handles=[
+                Line2D([], [], color="0.3", lw=0.8, label="current (left axis)"),
+                Line2D([], [], color="0.3", lw=0.9, ls=":", label="bus voltage (right axis)"),
+            ],
+            loc="lower right", fontsize="x-small", framealpha=0.9,
         )  # fmt: skip
     # Wrap the note to the figure width so a long one is not cut off at the edge.
     ax_i.set_xlabel(time_label + ("\n" + textwrap.fill(note, 120) if note else ""))

@@ -125,12 +125,15 @@ def test_the_heartbeat_is_pythons_while_a_program_or_a_stream_runs():
     state=st.integers(0, 4),
     fault=st.integers(0, 12),
     flags=st.integers(0, 0xFFFFFFFF),
+    bus_mv=st.integers(0, 0xFFFF),
     seq=st.integers(0, 255),
 )
-def test_frame_telemetry_writes_the_codecs_telemetry(values, tick, state, fault, flags, seq):
-    want = frame.encode_telemetry_fields(seq, tick, *values, state, fault, flags)
+def test_frame_telemetry_writes_the_codecs_telemetry(
+    values, tick, state, fault, flags, bus_mv, seq
+):
+    want = frame.encode_telemetry_fields(seq, tick, *values, state, fault, flags, bus_mv / 1e3)
     out = np.zeros(len(want) + 4, dtype=np.uint8)
     end = ftick.frame_telemetry(
-        out, 2, seq, tick, np.array(values), state, fault, flags, ftick.TABLES
+        out, 2, seq, tick, np.array(values), state, fault, flags, bus_mv, ftick.TABLES
     )
     assert end == 2 + len(want) and bytes(out[2:end]) == want

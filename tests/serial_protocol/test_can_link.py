@@ -72,7 +72,7 @@ ONE_OF_EACH = [
     SetEnable(9, True),
     SetTelemetry(10, 2),
     HelloReply(1, 7, 2, 0, 1, 2, 500, 16384, 0x3FFE, 64, 256, 32, 1, 200, 0, 20, 460800),
-    Telemetry(11, 1.5, -2.5, 1.25, -2.0, 0.5, -0.25, State.MOVING, Fault.NONE),
+    Telemetry(11, 1.5, -2.5, 1.25, -2.0, 0.5, -0.25, State.MOVING, Fault.NONE, 0, 24.25),
     Ack(12, MsgType.MOVE),
     Nack(13, MsgType.MOVE, NackCode.NOT_FINITE),
     FaultReport(14, Fault.OVER_CURRENT, 5.5),
@@ -120,9 +120,10 @@ def test_split_and_reassemble_every_message(msg):
     assert got == [None] * (len(frames) - 1) + [msg]
 
 
-def test_telemetry_takes_five_frames():
+def test_telemetry_takes_six_frames():
     frames = can_frames(ONE_OF_EACH[12])
-    assert [len(data) for _, data in frames] == [8, 8, 8, 8, 7]  # 30 + 4 bytes of CRC
+    # 32 + 4 bytes of CRC (an older board's 30 + 4 took five: 8, 8, 8, 8, 7)
+    assert [len(data) for _, data in frames] == [8, 8, 8, 8, 8, 2]
 
 
 @settings(max_examples=50)
@@ -149,7 +150,8 @@ def test_lost_segment_discards_the_message_and_the_next_one_survives():
     got = [reassembler.feed(*f) for f in first[:1] + first[2:] + second]
     assert [m for m in got if m is not None] == [ONE_OF_EACH[12]]
     assert reassembler.stats.reassembly_errors == 1
-    assert reassembler.stats.discarded_frames == 4  # the first segment, and 3 after the gap
+    # the first segment, and the 4 after the gap (6 frames, the second one lost)
+    assert reassembler.stats.discarded_frames == len(first) - 1 == 5
     # a transfer cut short by the start of the next one is also one error
     got = [reassembler.feed(*f) for f in first[:2] + second]
     assert [m for m in got if m is not None] == [ONE_OF_EACH[12]]

@@ -168,17 +168,54 @@ def test_frame(case):
         assert _same(raw[name], want if not hasattr(want, "value") else int(want)), name
 
 
-def test_the_spec_alone_reads_an_older_board_s_heartbeat():
+@pytest.mark.parametrize(
+    ("name", "type_byte"),
+    [
+        ("older_board_heartbeat", m.MsgType.BOARD_HEARTBEAT),
+        ("older_board_telemetry", m.MsgType.TELEMETRY),
+    ],
+)
+def test_the_spec_alone_reads_an_older_board_s_message(name, type_byte):
     """The extension rule as docs/protocol.md states it (the "at least" length, fields it
-    lacks read as 0) decodes the vectors' older BoardHeartbeat as the codec does."""
-    [case] = [c for c in VECTORS["streams"] if c["name"].startswith("older_board_heartbeat")]
+    lacks read as 0) decodes the vectors' older BoardHeartbeat and Telemetry (without the
+    appended bus voltage) as the codec does."""
+    [case] = [c for c in VECTORS["streams"] if c["name"].startswith(name)]
     data = bytes.fromhex(case["hex"])
-    type_byte, _, raw = _independent_decode(data)
-    assert type_byte == m.MsgType.BOARD_HEARTBEAT
+    got_type, _, raw = _independent_decode(data)
+    assert got_type == type_byte
     [want] = case["messages"]
     assert raw["bus_voltage_v"] == 0 and raw["tick"] == want["fields"]["tick"]
     [got] = frame.Decoder().feed(data)
     assert _matches(got, want)
+
+
+def test_an_older_pc_reads_the_telemetry_with_the_bus_voltage():
+    """An older PC knows only the version 2.0 fields of ``Telemetry`` (the rows not marked
+    *appended*); by the extension rule it decodes them from the first bytes of the longer
+    payload and ignores the rest: the same values as the new decoder's."""
+    [case] = [c for c in VECTORS["frames"] if c["name"] == "telemetry"]
+    data = bytes.fromhex(case["hex"])
+    section = re.search(r"^#### 0x82 `Telemetry` .*?(?=^#### )", DOC, re.M | re.S).group(0)
+    old_rows = [
+        (name, wire, unit.strip())
+        for name, wire, unit, meaning in re.findall(
+            r"^\| \d+ \| \d+ \| `(\w+)` \| (\w+) \| ([^|]*) \| ([^|]*) \|", section, re.M
+        )
+        if not meaning.strip().startswith("*appended*")
+    ]
+    fmt = "<" + "".join(WIRE[w] for _, w, _ in old_rows)
+    length = data[2]
+    assert length > struct.calcsize(fmt)  # the new frame is longer than an older PC expects
+    values = struct.unpack_from(fmt, data, 6)  # its first bytes: the fields it knows
+    [new] = frame.Decoder().feed(data)
+    for (name, wire, unit), raw in zip(old_rows, values, strict=True):
+        scale = _doc_scale(wire, unit)
+        assert _same(raw / scale if scale != 1.0 else raw, _wire_of(getattr(new, name))), name
+    assert new.bus_voltage_v == case["fields"]["bus_voltage_v"] > 0
+
+
+def _wire_of(value: Any) -> Any:
+    return int(value) if hasattr(value, "value") else value
 
 
 def _counters(decoder: frame.Decoder) -> dict[str, int]:

@@ -221,8 +221,8 @@ def test_every_message_type_has_a_codec_and_fits():
 
 def test_telemetry_frame_size_matches_layout():
     # header 6 + tick 4 + 4 positions/velocities x 4 + current 2 + duty 2 + state 1 + fault 1
-    # + fault flags 4 + CRC 4
-    assert TELEMETRY_FRAME_BYTES == 6 + 4 + 16 + 2 + 2 + 1 + 1 + 4 + 4
+    # + fault flags 4 + bus voltage 2 (appended) + CRC 4
+    assert TELEMETRY_FRAME_BYTES == 6 + 4 + 16 + 2 + 2 + 1 + 1 + 4 + 2 + 4
     assert len(encode(telemetry(1), 0)) == TELEMETRY_FRAME_BYTES
 
 
@@ -304,6 +304,7 @@ def test_which_fields_were_appended_after_version_2_0():
                       "thermal_trip_c"],
         "Limits": ["bus_over_voltage_v", "bus_under_voltage_v", "thermal_trip_c",
                    "winding_estimate_c", "thermal_derate_c"],
+        "Telemetry": ["bus_voltage_v"],
         "BoardHeartbeat": ["queue_free", "stream_free", "stream_state", "stream_underruns",
                            "bus_voltage_v"],
         "Status": ["sense_offset_a"],
@@ -674,4 +675,4 @@ def test_feed_columns_across_chunks_and_bad_codes():
 def test_feed_columns_of_nothing():
     columns, others = Decoder().feed_columns(b"")
     assert others == []
-    assert all(c.shape == (0,) for c in columns.values()) and len(columns) == 10
+    assert all(c.shape == (0,) for c in columns.values()) and len(columns) == 11

@@ -29,9 +29,15 @@ def _stream(rng: np.random.Generator, n_frames: int) -> bytes:
             raw = bytearray(
                 frame.encode_telemetry_fields(
                     seq, k, *vals.tolist(), int(rng.integers(0, 5)), int(rng.integers(0, 7)),
-                    int(rng.integers(0, 1 << 32)),
+                    int(rng.integers(0, 1 << 32)), float(rng.uniform(0.0, 30.0)),
                 )
             )  # fmt: skip
+            other = rng.random()
+            if other < 0.05:  # the extension rule: an older board's (the 2.0 fields only) or
+                # a newer board's telemetry (3 bytes more): columns as well
+                payload = bytes(raw[6:-4])
+                payload = payload[:_TEL_MIN] if other < 0.03 else payload + b"\x01\x02\x03"
+                raw = bytearray(frame.frame_raw(int(Telemetry.MSG_TYPE), payload, seq))
             if rng.random() < 0.02:  # a state code out of range, CRC good: Malformed
                 raw[frame._STATE_AT] = 0xEE
                 raw[-4:] = frame.crc32(bytes(raw[2:-4])).to_bytes(4, "little")
@@ -51,6 +57,7 @@ def _stream(rng: np.random.Generator, n_frames: int) -> bytes:
 
 
 _HB_FIELDS = len(dataclasses.fields(BoardHeartbeat))
+_TEL_MIN = frame._BY_CLASS[Telemetry].min_size
 
 
 def _damage(rng: np.random.Generator, data: bytes, n_damage: int) -> bytes:
@@ -125,6 +132,7 @@ def test_bulk_pass_decodes_as_the_frame_by_frame_scan(seed, n_frames, n_damage, 
     tel = [m for m in objects if isinstance(m, Telemetry)]
     assert bulk[0]["tick"] == [m.tick for m in tel]
     assert bulk[0]["pos_deg"] == [m.pos_deg for m in tel]
+    assert bulk[0]["bus_voltage_v"] == [m.bus_voltage_v for m in tel]
 
 
 def test_bulk_pass_takes_a_clean_stream_whole(monkeypatch):
@@ -155,3 +163,21 @@ def test_crc_tables_give_zlib_crc32():
         for p in range(size):
             crc ^= int(table[p, msg[p]])
         assert crc == frame.crc32(msg.tobytes())
+
+
+def test_an_older_and_a_newer_board_s_telemetry_decode_as_columns():
+    """The extension rule in ``feed_columns``: an older board's telemetry (without the
+    appended bus voltage) is a row with the bus voltage 0, a newer board's (more bytes
+    after it) a row with the fields this codec knows; as ``feed`` gives them."""
+    now = frame.encode_telemetry_fields(0, 7, 1.0, 2.0, 3.0, 4.0, 0.5, 0.25, 2, 0, 0, 24.517)
+    payload = now[6:-4]
+    old = frame.frame_raw(int(Telemetry.MSG_TYPE), payload[:_TEL_MIN], 1)
+    new = frame.frame_raw(int(Telemetry.MSG_TYPE), payload + b"\xff" * 6, 2)
+    data = (now + old + new) * 200  # enough for the bulk pass
+    cols, others = Decoder().feed_columns(data)
+    assert others == [] and len(cols["tick"]) == 600
+    assert cols["bus_voltage_v"][:3].tolist() == [24.517, 0.0, 24.517]
+    assert cols["pos_deg"][:3].tolist() == [3.0, 3.0, 3.0]
+    objects = Decoder().feed(data)
+    assert [m.bus_voltage_v for m in objects[:3]] == [24.517, 0.0, 24.517]
+    assert objects[1] == Telemetry(7, 1.0, 2.0, 3.0, 4.0, 0.5, 0.25, State.MOVING, Fault.NONE)

@@ -124,12 +124,12 @@ def test_fault_injection_checks_its_rates():
 
 @pytest.mark.parametrize(
     ("baud", "expected"),
-    [(9600, 27), (57600, 5), (115200, 3), (230400, 2), (460800, 1), (921600, 1)],
+    [(9600, 28), (57600, 5), (115200, 3), (230400, 2), (460800, 1), (921600, 1)],
 )
 def test_telemetry_decimation(baud, expected):
-    # 40-byte frames at 500 Hz = 20000 B/s; 80 % of baud/10 available
-    assert TELEMETRY_FRAME_BYTES == 40
-    assert telemetry_decimation(baud, 40, 500) == expected
+    # 42-byte frames at 500 Hz = 21000 B/s; 80 % of baud/10 available
+    assert TELEMETRY_FRAME_BYTES == 42
+    assert telemetry_decimation(baud, 42, 500) == expected
 
 
 @settings(max_examples=200)

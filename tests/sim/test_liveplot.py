@@ -79,6 +79,7 @@ def test_the_lines_show_the_latest_window():
         "output shaft\nvelocity (°/s)",
         "output shaft\nposition (°)",
         "motor current (A)",
+        "bus voltage (V)\n(0: not sent)",
     ]
 
 

@@ -4,6 +4,8 @@ UART (``sim.simlink.SimulatedLink``, stepped a fixed number of ticks per poll)."
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -260,5 +262,9 @@ def test_the_toolbar_shows_the_bus_voltage_of_the_last_heartbeat(board):
     shell = MonitorShell(client, latest=lambda: client.telemetry[-1], say=lambda s: None)
     assert " A 24.0V" in shell.toolbar()
     msg = client.telemetry[-1]
-    assert "V" not in status_text(msg).split(" A")[-1]  # no heartbeat yet: no bus shown
-    assert status_text(msg, bus_voltage_v=27.93).endswith("A 27.9V")
+    # every telemetry frame carries it too (appended): shown without a heartbeat
+    assert msg.bus_voltage_v == pytest.approx(24.0, abs=0.01) == client.bus_voltage_v
+    assert status_text(msg).endswith(" A 24.0V")
+    old = dataclasses.replace(msg, bus_voltage_v=0.0)  # an older board's telemetry
+    assert "V" not in status_text(old).split(" A")[-1]  # no heartbeat yet: no bus shown
+    assert status_text(old, bus_voltage_v=27.93).endswith("A 27.9V")
