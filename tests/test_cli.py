@@ -177,7 +177,7 @@ BAD_ARGUMENTS = [
     (["tune", "bench_configs/paper_bench.toml", "--popsize", "1"], "must be in 2 .. 1000"),
     (["tune", "README.md"], "README.md: not valid TOML"),
     (["reproduce", "--out", "README.md"], "is a file, not a folder"),
-    (["reproduce", "--out", "o", "--noise-copies", "0"], "--noise-copies: '0': must be in 1 .. 64"),
+    (["reproduce", "--out", "o", "--noise-copies", "1"], "--noise-copies: '1': must be in 2 .. 64"),
     (["reproduce", "--out", "o", "--noise-copies", "x"], "--noise-copies: 'x'"),
     (["reproduce", "--out", "o", "--retune", "pid"], "--retune: invalid choice: 'pid'"),
     (["reproduce", "--out", "o", "--sensitivity=yes"], "--sensitivity: ignored explicit argument"),

@@ -37,9 +37,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default, instant) or its differential evolution (seconds per motor)",
     )  # fmt: skip
     parser.add_argument(
-        "--noise-copies", type=integer(1, 64), default=None, metavar="N",
-        help="noise realisations of the study's nominal runs, 1..64 (default 3; 5 with "
-        "--sensitivity)",
+        "--noise-copies", type=integer(2, 64), default=None, metavar="N",
+        help="noise realisations of every run (the report's error bars: mean ± sd), 2..64 "
+        "(default 3; 5 with --sensitivity)",
     )  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress display or summary")
 
