@@ -76,8 +76,9 @@ def reproduce(
         sensitivity: the full sensitivity study (``sim.reproduce.band.run_sensitivity``
             with ``full=True``) instead of its cheap form.
         retune: how each motor of the study is re-tuned, ``"classic"`` or ``"de"``.
-        noise_copies: noise realisations of the study's nominal members (default 3, or 5
-            with ``sensitivity``).
+        noise_copies: noise realisations of every run and of the study's nominal members
+            and variants (default 3, or 5 with ``sensitivity``; the runs take at least 2):
+            REPORT.md's error bars.
     """
     wall0 = time.monotonic()
     out = Path(out_dir)
