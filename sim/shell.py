@@ -289,8 +289,9 @@ def parse_command(client: Any, text: str) -> ParsedCommand:
         vel = list(pts.vel_dps) if pts.vel_dps is not None else None
         return ParsedCommand(
             verb,
-            lambda: client.stream(list(pts.pos_deg), pts.period_s, vel_dps=vel,
-                                  interp=pts.interp),  # fmt: skip
+            lambda: client.stream(
+                list(pts.pos_deg), pts.period_s, vel_dps=vel, interp=pts.interp
+            ),  # fmt: skip
             {"period_s": pts.period_s},
         )
     if verb == "telemetry":
@@ -371,9 +372,12 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
         return _refused(reply, fields)
     if isinstance(reply, Status):
         fault = "" if reply.fault == Fault.NONE else f", fault {_name(Fault, reply.fault)}"
+        # the IS offset the board subtracts (calibrated at enable), when it has one
+        offset = f", IS offset {reply.sense_offset_a:.3f} A" if reply.sense_offset_a else ""
         return (
             f"{_name(State, reply.state)}{fault}: position {reply.pos_deg:.3f} deg, velocity "
-            f"{reply.vel_dps:.1f} deg/s, target {reply.target_deg:.3f} deg (tick {reply.tick})"
+            f"{reply.vel_dps:.1f} deg/s, target {reply.target_deg:.3f} deg{offset} "
+            f"(tick {reply.tick})"
         )
     if isinstance(reply, Gains):
         return (
@@ -387,9 +391,7 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
             f"deg, over-current trip {reply.over_current_trip_a:g} A"
         )
         if reply.bus_over_voltage_v or reply.bus_under_voltage_v:
-            text += (
-                f", bus trips {reply.bus_under_voltage_v:g}..{reply.bus_over_voltage_v:g} V"
-            )
+            text += f", bus trips {reply.bus_under_voltage_v:g}..{reply.bus_over_voltage_v:g} V"
         if reply.thermal_trip_c:
             text += (
                 f", thermal derate {reply.thermal_derate_c:g} degC, trip "

@@ -16,14 +16,17 @@ import bench_configs
 from serial_protocol.frame import field_index
 from serial_protocol.host import BoardClient
 from serial_protocol.messages import (
+    NO_FIELD,
     Ack,
     Fault,
     Limits,
     Move,
     Nack,
     NackCode,
+    SetEnable,
     SetLimits,
     State,
+    Status,
     Telemetry,
 )
 from sim.config import load_bench
@@ -177,6 +180,14 @@ def test_describe_names_the_field_of_a_v2_nack():
     assert describe(Ack(1, 2)) == "ok"
     limits = describe(Limits(1, 990.0, 148.0, 5.0, 10.0))
     assert limits.startswith("v_max 990 deg/s, a_max 148 deg/s^2")
+    status = Status(1, 7, State.IDLE, Fault.NONE, 1.0, 0.0, 1.0)
+    assert describe(status) == (
+        "IDLE: position 1.000 deg, velocity 0.0 deg/s, target 1.000 deg (tick 7)"
+    )
+    calibrated = dataclasses.replace(status, sense_offset_a=0.4247)
+    assert "target 1.000 deg, IS offset 0.425 A (tick 7)" in describe(calibrated)
+    refused = Nack(1, SetEnable.MSG_TYPE, NackCode.SENSE_OFFSET, NO_FIELD, 1.7)
+    assert "offset" in describe(refused)
 
 
 @given(
