@@ -440,7 +440,8 @@ class Firmware:
 
         Returns:
             ``duty`` in [-1, 1] on the timer's ARR grid, applied by the bridge for the next
-            current-loop period, and ``enable`` (False: bridge off, the motor coasts).
+            current-loop period, and ``enable`` (False: bridge off, the motor coasts); while
+            ``bridge_high_sides`` is nonzero the bridge has both high sides on instead.
         """
         law = self.law
         if bus_adc_counts is not None:
@@ -519,6 +520,14 @@ class Firmware:
             fault.setflags(write=False)
             self._fault_cache = (self._flags_version, fault)
         return self._fault_cache[1]
+
+    @property
+    def bridge_high_sides(self) -> np.ndarray:
+        """Per member (int64 ``(N,)``, a view read after ``current_tick``): nonzero while
+        the IS-offset calibration wants both high sides of the bridge on for the next
+        period (``[controller.current] sense_calibration``); its parity picks the IS pin
+        the ADC reads then (even: the positive half-bridge's; ``sim.bridge.apply_bridge``)."""
+        return self.law.C[C_CAL_LEFT]
 
     @property
     def thermal_estimate_c(self) -> Any:

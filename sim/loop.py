@@ -37,7 +37,6 @@ import numpy as np
 
 from firmware_model import tick as ftick
 from firmware_model.firmware import SIGNAL_NAMES
-from firmware_model.laws.layout import C_CAL_LEFT
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Hello, Telemetry
@@ -769,7 +768,7 @@ class Simulation:
             # (sim.bridge.quantise_duty).
             d, en = np.empty(n), np.empty(n, dtype=bool)
             # Both high sides on while the project's firmware calibrates its IS offset.
-            high = fw.law.C[C_CAL_LEFT] if self._reads_bus else _NO_HIGH_SIDES
+            high = fw.bridge_high_sides if self._reads_bus else _NO_HIGH_SIDES
             apply_bridge(
                 duty, enable, high, self._arr_n, self._vs_n, d, en, self._sense_sign, self._volt
             )
