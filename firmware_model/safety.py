@@ -210,9 +210,10 @@ def sensor_mismatch_step(
     The bridge's voltage is ``duty`` times the bus: ``supply_v`` as configured, or, with
     ``v_per_bus_count`` > 0 (``[safety] sensor_mismatch_measured_bus``), the firmware's
     own reading of the bus in the last period, ``bus_adc * v_per_bus_count`` (a rail lifted
-    by braking is then no error of the model). A reading at ``bus_hold_counts`` or above
-    (the BTN7971B may have locked its outputs out: the terminal voltage is not the duty's
-    and the IS pin reads nothing) holds the member's excess where it is for that tick.
+    by braking is then no error of the model). In either case a reading at
+    ``bus_hold_counts`` or above (the BTN7971B may have locked its outputs out: the terminal
+    voltage is not the duty's and the IS pin reads nothing) holds the member's excess where
+    it is for that tick: a lock-out is not a sensor fault (the bus trip names it, if on).
 
     What the firmware does not know makes the back-EMF speed an interval, not a value
     (docs/model.md, "Safety"): the true current is the reading less the IS pin's offset,
@@ -237,11 +238,13 @@ def sensor_mismatch_step(
         if not live[j] or not emf_v_per_dps[j] > 0.0:  # off, or no EMF model to check by
             excess_deg[j] = 0.0
             continue
-        bus_v = supply_v
-        if v_per_bus_count > 0.0:
-            if bus_adc[j] >= bus_hold_counts:
-                continue  # perhaps locked out: no terminal equation this tick
-            bus_v = bus_adc[j] * v_per_bus_count
+        # The board reads the bus whichever voltage the check takes: from the lock-out
+        # level up the BTN7971B may have turned its outputs off (the terminal voltage is
+        # not the duty's, the IS pin reads nothing), so there is no terminal equation
+        # this tick; the bus trip, if on, names the cause.
+        if bus_adc[j] >= bus_hold_counts:
+            continue
+        bus_v = bus_adc[j] * v_per_bus_count if v_per_bus_count > 0.0 else supply_v
         v = vel_dps[j]
         ke = emf_v_per_dps[j]
         i = current_a[j]

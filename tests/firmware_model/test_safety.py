@@ -463,8 +463,9 @@ def test_the_back_emf_check_holds_still_off_the_nominal_supply(supply_v):
     assert np.all(log.fault == 0)
 
 
-# The back-EMF check's bus: the configured supply (no bus reading used).
-CONFIGURED = (np.zeros(3, dtype=np.int64), 0.0, 0.0)
+# The back-EMF check's bus: the configured supply (the bus reading, 0 here, below the
+# lock-out hold of 4096 counts, only tells it when the chip may be locked out).
+CONFIGURED = (np.zeros(3, dtype=np.int64), 0.0, 4096.0)
 # ... and a model it takes as exact: the current's gain and offset, R, no thermal rise.
 EXACT = (0.0, 0.0, 0.0, np.zeros(3), 0.0, 0.0)
 
