@@ -410,6 +410,11 @@ class SafetyParams(_Checked):
             falls linearly to ``thermal_derate_min_ratio`` of itself at ``thermal_trip_c``,
             where the ``THERMAL`` trip latches. The network's constants are the firmware's
             copy of the motor's (``thermal_r_*``, ``thermal_tau_*``, ``thermal_alpha_cu_per_k``).
+        thermal_ff_resistance: the current loop's feed-forward resistance (and its
+            regenerative clamp's) follows the rise the same estimate has seen since
+            power-up, ``R_nom (1 + alpha (T_est - thermal_ambient_c))`` (``R_nom``:
+            ``[controller.current] resistance_ohm``, taken as the power-up value); needs
+            ``thermal_protection`` (off, or without it: ``R_nom``).
     """
 
     over_current_a: float = _f(7.5, _rng(0.01, 60.0))
@@ -437,6 +442,7 @@ class SafetyParams(_Checked):
     thermal_tau_winding_s: float = _f(30.0, _rng(0.1, 3600.0))
     thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
     thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
+    thermal_ff_resistance: bool = _f(True, _boolean)
     sensor_mismatch_measured_bus: bool = _f(False, _boolean)
     sensor_mismatch_sense_spread: float = _f(0.65, _rng(0.0, 0.99))
     sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))

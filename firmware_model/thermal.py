@@ -95,10 +95,16 @@ def network_step(temps, j, p_w, p_h, t_a, net):
 # over one servo tick (``N_NET``), then these.
 (
     TP_ON, TP_ALPHA, TP_REF_C, TP_AMBIENT_C, TP_NO_LOAD_A, TP_DERATE_C, TP_TRIP_C, TP_MIN_RATIO,
-) = range(N_NET, N_NET + 8)  # fmt: skip
-N_TP = N_NET + 8
+    TP_FF_R,
+) = range(N_NET, N_NET + 9)  # fmt: skip
+N_TP = N_NET + 9
 # The temperature the firmware's resistance ([controller.current] resistance_ohm) is given at.
 REFERENCE_C = 20.0
+# The bounds of the feed-forward resistance's relative rise alpha (T_est - T_ambient): the
+# factor 1 + rise stays within [0.5, 2] (copper 127 K below to 254 K above its power-up
+# temperature), so that R_nom times it stays a Q8.24 number for R_nom up to 64 Ohm in the
+# fixed-point law.
+R_RISE_MIN, R_RISE_MAX = -0.5, 1.0
 
 
 def protection_constants(safety: object, dt_s: float) -> np.ndarray:
@@ -112,13 +118,13 @@ def protection_constants(safety: object, dt_s: float) -> np.ndarray:
     tp[N_NET:] = (
         1.0 if s.thermal_protection else 0.0, s.thermal_alpha_cu_per_k, REFERENCE_C,
         s.thermal_ambient_c, s.thermal_no_load_current_a, s.thermal_derate_c, s.thermal_trip_c,
-        s.thermal_derate_min_ratio,
+        s.thermal_derate_min_ratio, 1.0 if s.thermal_ff_resistance else 0.0,
     )  # fmt: skip
     return tp
 
 
 @kernel(error_model="numpy")
-def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate):
+def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate, rise):
     """The firmware's thermal protection, one servo tick for every member. ``fs[at:]``
     holds its constants (``tp``: ``N_TP`` numbers, the ``TP_*`` offsets from ``at``), then
     each member's estimate of the winding and housing temperatures (degC, two numbers per
@@ -127,7 +133,12 @@ def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at,
     model's where the sense is blind) and the no-load current times the back-EMF (``emf
     * |v|``, the friction loss a datasheet's no-load current stands for) into the housing;
     ``derate[j]`` (the law's ``P_DERATE``) becomes the fraction of the current limit taken
-    away: 0 up to ``TP_DERATE_C``, rising linearly to ``1 - TP_MIN_RATIO`` at ``TP_TRIP_C``.
+    away: 0 up to ``TP_DERATE_C``, rising linearly to ``1 - TP_MIN_RATIO`` at ``TP_TRIP_C``;
+    with ``TP_FF_R`` set, ``rise[j]`` (the law's ``P_R_RISE``) becomes the winding
+    resistance's relative rise since power-up at the new estimate, ``alpha (T_est -
+    T_ambient)`` within ``[R_RISE_MIN, R_RISE_MAX]``, which the current loop's feed-forward R
+    follows (its ``R_nom`` is the power-up value: the assumed ambient is the protection's
+    worst case, not a measurement, and would bias the feed-forward).
     Returns True if an enabled member's estimate reached ``TP_TRIP_C`` (the ``THERMAL``
     trip). It knows nothing of the plant's temperatures."""
     lo, hi = fs[at + TP_DERATE_C], fs[at + TP_TRIP_C]
@@ -142,6 +153,9 @@ def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at,
             fs[w], fs[w + 1], i * i * r, p_h, fs[at + TP_AMBIENT_C], fs, at
         )
         t_w = fs[w]
+        if fs[at + TP_FF_R] != 0.0:
+            up = fs[at + TP_ALPHA] * (t_w - fs[at + TP_AMBIENT_C])
+            rise[j] = min(max(up, R_RISE_MIN), R_RISE_MAX)
         if t_w <= lo:
             derate[j] = 0.0
         elif t_w >= hi:

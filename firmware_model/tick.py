@@ -30,6 +30,7 @@ from firmware_model.laws.layout import (
     P_DUTY,
     P_IMEAS,
     P_POS,
+    P_R_RISE,
     P_VEL,
     P_VREF,
 )  # fmt: skip
@@ -173,7 +174,8 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
             sensor = True
     # The thermal protection (its estimate, the derating of this tick's current limit).
     if fs[FS_THERMAL + TP_ON] != 0.0 and thermal_protection(
-        P[P_IMEAS], P[P_VEL], enabled, sf[SF_R], sf[SF_EMF], fs, FS_THERMAL, P[P_DERATE]
+        P[P_IMEAS], P[P_VEL], enabled, sf[SF_R], sf[SF_EMF], fs, FS_THERMAL, P[P_DERATE],
+        P[P_R_RISE],
     ):
         sensor = True
     t_s = fi[FI_TICK] * fs[FS_DT]

@@ -38,6 +38,7 @@ from firmware_model.laws.layout import (
     G_KPOS_M1,
     G_KVEL,
     G_R_FF,
+    G_R_T,
     G_VFF,
     HALF_REV,
     K_A_PER_ADC_Q,
@@ -61,6 +62,7 @@ from firmware_model.laws.layout import (
     P_IMEAS,
     P_IREF,
     P_POS,
+    P_R_RISE,
     P_VEL,
     P_VEL_RAW,
     P_VREF,
@@ -196,6 +198,10 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     for j in range(C.shape[1]):
         # The thermal protection's derating of this member (1 - 0 = the limit itself).
         il = qsig(i_limit_a * (1.0 - P[P_DERATE, j]))
+        # The feed-forward's R at the winding estimate: R_nom (Q8.24) times the factor
+        # 1 + rise (Q8.24, within [0.5, 2]), one SMULL and a shift; the factor comes from the
+        # thermal estimate once per servo tick, as the derating does.
+        G[G_R_T, j] = _mul(G[G_R_FF, j], qgain(1.0 + P[P_R_RISE, j]))
         e = _sat(_sat(sp_count - C[C_COUNT, j]) * Q_DEG_PER_COUNT)
         vr = _clamp(_sat(_mul(e, G[G_KP_P, j]) + _mul(sv, G[G_VFF, j])), vc)
         ev = _sat(vr - S[S_VEL, j])
@@ -245,11 +251,11 @@ def current(adc, enabled, P, C, S, G, K):
         S[ref_row, j] = i_ref
         emf = _mul(S[S_VEL, j], G[G_EMF_FF, j])
         u = _sat(_mul(e, G[G_KP_I, j]) + S[S_I_I, j])
-        u = _sat(u + _mul(i_ref, G[G_R_FF, j]))
+        u = _sat(u + _mul(i_ref, G[G_R_T, j]))
         u = _sat(u + emf)
         i_i = S[S_I_I, j]
         # The regenerative clamp and its back-calculation (see float64.current).
-        r_lim = _mul(qsig(K[K_I_LIMIT_A] * (1.0 - P[P_DERATE, j])), G[G_R_FF, j])
+        r_lim = _mul(qsig(K[K_I_LIMIT_A] * (1.0 - P[P_DERATE, j])), G[G_R_T, j])
         lo, hi = _sat(emf - r_lim), _sat(emf + r_lim)
         if u < lo and u >= 0:
             i_i = _sat(i_i + _sat(lo - u))

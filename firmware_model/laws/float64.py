@@ -37,6 +37,7 @@ from firmware_model.laws.layout import (
     G_KPOS_M1,
     G_KVEL,
     G_R_FF,
+    G_R_T,
     G_VFF,
     HALF_REV,
     K_A_PER_ADC,
@@ -58,6 +59,7 @@ from firmware_model.laws.layout import (
     P_IMEAS,
     P_IREF,
     P_POS,
+    P_R_RISE,
     P_VEL,
     P_VEL_RAW,
     P_VREF,
@@ -160,8 +162,10 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     regen = K[K_REGEN_A]
     i_limit_all = i_limit_a
     for j in range(C.shape[1]):
-        # The thermal protection's derating of this member (1 - 0 = the limit itself).
+        # The thermal protection's derating of this member (1 - 0 = the limit itself), and
+        # the current loop's feed-forward R at its winding estimate (x 1.0: the nominal R).
         i_limit_a = i_limit_all * (1.0 - P[P_DERATE, j])
+        G[G_R_T, j] = G[G_R_FF, j] * (1.0 + P[P_R_RISE, j])
         e = sp_pos_deg - C[C_COUNT, j] * AXIS_DEG_PER_COUNT
         vr = _clip(e * G[G_KP_P, j] + sp_vel_dps * G[G_VFF, j], v_clamp_dps)
         ev = vr - S[S_VEL, j]
@@ -218,7 +222,7 @@ def current(adc, enabled, P, C, S, G, K):
         i_ref = S[S_IREF, j]
         S[ref_row, j] = i_ref
         emf = S[S_VEL, j] * G[G_EMF_FF, j]
-        u = e * G[G_KP_I, j] + S[S_I_I, j] + i_ref * G[G_R_FF, j] + emf
+        u = e * G[G_KP_I, j] + S[S_I_I, j] + i_ref * G[G_R_T, j] + emf
         ii = S[S_I_I, j]
         if not (abs(u) > u_lim and u * e > 0.0):
             ii = ii + e * G[G_KI_I_DT, j]
@@ -226,7 +230,7 @@ def current(adc, enabled, P, C, S, G, K):
         # to the high-side sense, so on that side the voltage is kept where the model
         # predicts at most the current limit, |u - emf| <= R * I_limit; the integrator
         # tracks the clamp (back-calculation), so that the loop leaves it without a jump.
-        r_lim = G[G_R_FF, j] * (i_limit_a * (1.0 - P[P_DERATE, j]))
+        r_lim = G[G_R_T, j] * (i_limit_a * (1.0 - P[P_DERATE, j]))
         d = u - emf
         if abs(d) > r_lim and d * u <= 0.0:
             c = emf - r_lim if d < 0.0 else emf + r_lim

@@ -36,6 +36,7 @@ from firmware_model.laws.layout import (
     G_KPOS_M1,
     G_KVEL,
     G_R_FF,
+    G_R_T,
     G_VFF,
     HALF_REV,
     K_A_PER_ADC,
@@ -175,7 +176,8 @@ class Law:
             G_KP_P: g["kp_p"], G_VFF: g["vel_ff"], G_KP_V: g["kp_v"],
             G_KI_V_DT: np.asarray(g["ki_v"]) * self.dt_s, G_ACC_FF: g["acc_ff"],
             G_KP_I: g["kp_i"], G_KI_I_DT: np.asarray(g["ki_i"]) * self.dt_current_s,
-            G_R_FF: g["r_ff"], G_EMF_FF: g["emf_ff"], G_KPOS_M1: self.k_pos - 1.0,
+            G_R_FF: g["r_ff"], G_R_T: g["r_ff"], G_EMF_FF: g["emf_ff"],
+            G_KPOS_M1: self.k_pos - 1.0,
             G_KVEL: self.k_vel, G_KDIST: self.k_dist, G_K_VEL: self.dps_per_count_tick,
             G_K_ACC: self.counts_tick2_per_a,
         }  # fmt: skip
