@@ -46,7 +46,7 @@ from sim.bridge import apply_bridge, pwm_sense_table, read_adc, switching, switc
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
-from sim.plant import I_A, TWIST, VEL, Plant
+from sim.plant import I_A, POS, TWIST, VEL, Plant
 from sim.supply import Bus, read_bus_adc, step_period
 from sim.thermal import Heat, heat_advance, heat_groups
 
@@ -69,6 +69,19 @@ PLANT_FIELDS = (
 )
 LOG_FIELDS = ("t_s",) + FW_FIELDS + PLANT_FIELDS
 _INT_FIELDS = ("state", "fault")
+_SHARED_FIELDS = ("sp_pos_deg", "sp_vel_dps", "sp_acc_dps2")
+# The plant's log columns, in the order of the compiled tick's (5, capacity, N) array.
+PLANT_LOG = ("true_pos_deg", "true_vel_dps", "platter_pos_deg", "motor_pos_rad", "current_a")
+_RAD2DEG = 180.0 / math.pi  # np.degrees' factor (numpy: x * (180 / pi))
+
+
+def _broadcast(values: np.ndarray, n: int, copy: bool, over_time: bool = False) -> np.ndarray:
+    """A column kept once for the batch (``values``: ``(n_ticks,)``, the same for every one of
+    ``n`` members) or once for the run (``over_time``: ``(N,)``, constant over ``n``
+    ticks) as the log's ``(N, n_ticks)``: a read-only view, or a copy."""
+    shape = (values.shape[0], n) if over_time else (n, values.shape[0])
+    view = np.broadcast_to(values[:, None] if over_time else values, shape)
+    return view.copy() if copy else view
 
 
 @dataclass(frozen=True)
@@ -86,6 +99,10 @@ class RunLog:
     sampling instant (the supply's voltage without ``[supply] bus_model``). ``current_a`` is
     the true armature current,
     ``current_meas_a`` the firmware's signed reading of the IS pin.
+
+    The setpoint columns (the batch's one setpoint) and, without the bus or heat model,
+    ``bus_v`` and ``winding_c`` (constant) of ``run``'s log are read-only broadcasts of one
+    value a tick or a member (``Simulation.log()`` gives copies).
     """
 
     t_s: np.ndarray
@@ -253,8 +270,9 @@ class Simulation:
             (anything with ``servo_tick``, ``current_tick`` and ``signals``; a
             ``signal_row()`` giving the signals as a tuple in ``FW_FIELDS`` order is used
             where it exists).
-        record_inputs: keep the ``(duty, enable)`` of every plant step (``inputs()``), e.g.
-            to replay a run through ``solve_ivp``.
+        record_inputs: keep the ``(duty, enable)`` of every plant step (``inputs()``) and
+            the plant state at every sampling instant (``states()``), e.g. to replay a run
+            through ``solve_ivp``.
         keep_log: keep the per-tick log (``log()``). A long-running server (``serve``)
             passes False: the log grows by about 1 kB per tick (1.8 GB per hour at N = 1).
     """
@@ -304,8 +322,6 @@ class Simulation:
         # ADC noise: standard normals drawn in blocks of 4096 periods x N, as the encoder's.
         self._adc_block = np.empty((0, n))
         self._adc_row = 0
-        self._deg_per_rad_axis = math.degrees(1.0) / plant.gearbox.ratio
-        self._n_total = plant.total_ratio
         # With the bus model the plant steps a whole current-loop period or sub-steps of it
         # (sim.supply): the sub-step is a level of the period's tables.
         self.bus = Bus(plant, n, self.h_s)
@@ -331,7 +347,12 @@ class Simulation:
         self._inputs: list[tuple[Any, Any]] = []
         self._cap = 0
         self._arrays: dict[str, np.ndarray] = {}
-        self._xlog = np.empty((0, n, 5))
+        self._states: list[np.ndarray] = []
+        # The log's plant columns (PLANT_LOG), (5, capacity, N), and their constants.
+        self._plog = np.empty((len(PLANT_LOG), 0, n))
+        ratio = per_member(plant.gearbox.ratio, n)
+        total = ratio * per_member(plant.belt.ratio, n)
+        self._plant_consts = np.array([math.degrees(1.0) / ratio, total, np.full(n, _RAD2DEG)])
         # The IS pin reads the current in the direction of the applied duty, from the
         # high side only (sim.bridge.sensed_current_a): sign(duty), 0 while disabled.
         self._sense_sign = np.zeros(n)
@@ -366,6 +387,13 @@ class Simulation:
         self._compiled = type(firmware) is Firmware and not record_inputs
         # The project's firmware reads the bus voltage too (a foreign one: the IS pin only).
         self._reads_bus = isinstance(firmware, Firmware)
+        # The log's columns kept once a tick (the project's firmware has one setpoint for
+        # the batch) and not at all (constant: the supply's voltage without the bus model,
+        # the reference temperature without the heat model): ``_log`` broadcasts them.
+        self._shared = _SHARED_FIELDS if self._reads_bus else ()
+        self._constant = tuple(
+            f for f, on in (("bus_v", self.bus.on), ("winding_c", self.heat.on)) if not on
+        )
         self._x_spare = np.zeros((n, 5))
         # run_ticks' scratch and its log tuple, kept between calls (a call of one tick,
         # sim.step(1), should not pay a dozen small allocations): ctx, flags, credit, the
@@ -422,6 +450,13 @@ class Simulation:
             return duty[:, 0], enable[:, 0]
         return duty, enable
 
+    def states(self) -> np.ndarray:
+        """The plant state at every sampling instant so far, ``(n_ticks, N, 5)`` (needs
+        ``record_inputs=True``; with ``inputs()``, what a replay starts from)."""
+        if not self._record_inputs:
+            raise ValueError("record_inputs = False: construct the Simulation with True")
+        return np.array(self._states).reshape(-1, self.n, 5)
+
     def step(self, n_ticks: int = 1) -> None:
         """Advance ``n_ticks`` servo ticks."""
         if self._compiled:
@@ -447,17 +482,21 @@ class Simulation:
             # order (Fortran), is a plain memcpy; a C-ordered copy would transpose.
             return np.array(rows.T, order="K") if copy else rows.T
 
-        cols = {f: columns(a[:n]) for f, a in self._arrays.items()}
-        x = self._xlog[:n]  # (n, N, 5)
-        pos = x[:, :, 1]
-        # New (n, N) arrays, in one allocation (as _grow's): their transposes need no copy.
-        out = np.empty((3, n, self.n))
-        cols["true_pos_deg"] = np.multiply(pos, self._deg_per_rad_axis, out=out[0]).T
-        cols["true_vel_dps"] = np.multiply(x[:, :, VEL], self._deg_per_rad_axis, out=out[1]).T
-        platter = np.divide(pos, self._n_total, out=out[2])
-        cols["platter_pos_deg"] = np.degrees(np.subtract(platter, x[:, :, TWIST], out=platter)).T
-        cols["motor_pos_rad"] = columns(pos)
-        cols["current_a"] = columns(x[:, :, I_A])
+        big = self.n
+        cols = {}
+        for f, a in self._arrays.items():
+            if a.shape[1] == big:
+                cols[f] = columns(a[:n])
+            else:  # the shared setpoint, one value a tick: every member's row is the same
+                cols[f] = _broadcast(a[:n, 0], big, copy)
+        plant = self._plog[:, :n]  # (5, n, N): the plant's columns, in PLANT_LOG order
+        for q, f in enumerate(PLANT_LOG):
+            cols[f] = columns(plant[q])
+        # Constant over the run without the bus model or the heat model: one value a member.
+        if "bus_v" not in cols:
+            cols["bus_v"] = _broadcast(self._vs_n, n, copy, over_time=True)
+        if "winding_c" not in cols:
+            cols["winding_c"] = _broadcast(self.heat.winding_c(), n, copy, over_time=True)
         cols["t_s"] = np.arange(n) * self.dt_s
         log = RunLog(**cols)
         return log.member(0) if self._scalar else log
@@ -485,24 +524,48 @@ class Simulation:
     def _grow(self, min_cap: int = 0) -> None:
         cap = max(1024, 2 * self._cap, min_cap)
         n = self.n
-        fields = (*FW_FIELDS, "voltage_v", "bus_v", "winding_c")
+        # Per member and tick: the firmware's signals but the setpoint, the bridge voltage,
+        # the bus voltage and winding temperature where they change (their models on), and
+        # the plant's columns (written as the log shows them: no pass over the log after
+        # the run). The setpoint, shared by the batch, is one value a tick; a constant bus
+        # voltage or winding temperature is not stored (``_log`` broadcasts them).
+        fields = [f for f in FW_FIELDS if f not in self._shared]
+        fields += ["voltage_v"] + [f for f in ("bus_v", "winding_c") if f not in self._constant]
         # One allocation for the whole log (every column 8 bytes a value): numpy backs an
-        # allocation of 4 MB or more with huge pages, so a batch log (~35 kB a tick at
+        # allocation of 4 MB or more with huge pages, so a batch log (~30 kB a tick at
         # N = 256) costs a few page faults instead of one per 4 kB written.
         block = cap * n * 8
-        buf = np.empty(block * (len(fields) + 5), dtype=np.uint8)
-        for q, f in enumerate(fields):
+        shared = cap * 8
+        buf = np.empty(
+            block * (len(fields) + len(PLANT_LOG)) + shared * len(self._shared), dtype=np.uint8
+        )
+        # The plant's columns first, as one (5, cap, N) array for the compiled tick.
+        new = buf[: len(PLANT_LOG) * block].view(np.float64).reshape(len(PLANT_LOG), cap, n)
+        new[:, : self._cap] = self._plog[:, : self._cap]
+        self._plog = new
+        at = len(PLANT_LOG) * block
+        for f in (*fields, *self._shared):
             dtype = np.int64 if f in _INT_FIELDS else np.float64
+            width = 1 if f in self._shared else n
+            size = cap * width * 8
             # row per tick: contiguous writes
-            new = buf[q * block : (q + 1) * block].view(dtype).reshape(cap, n)
+            new = buf[at : at + size].view(dtype).reshape(cap, width)
+            at += size
             if f in self._arrays:
                 new[: self._cap] = self._arrays[f][: self._cap]
             self._arrays[f] = new
-        # The plant state at each sampling instant; log() derives its columns.
-        new = buf[len(fields) * block :].view(np.float64).reshape(cap, n, 5)
-        new[: self._cap] = self._xlog[: self._cap]
-        self._xlog = new
         self._cap = cap
+
+    def _log_plant(self, k: int, x: np.ndarray) -> None:
+        """Log row ``k`` of the plant's columns from states ``x`` (``(N, 5)``): the
+        compiled tick's arithmetic (``sim.tick.run_ticks``, ``TOP``), in numpy."""
+        plog, (deg_axis, n_total, rad2deg) = self._plog, self._plant_consts
+        pos = x[:, POS]
+        plog[0, k] = pos * deg_axis
+        plog[1, k] = x[:, VEL] * deg_axis
+        plog[2, k] = (pos / n_total - x[:, TWIST]) * rad2deg
+        plog[3, k] = pos
+        plog[4, k] = x[:, I_A]
 
     def reserve(self, n_ticks: int) -> None:
         """Make room for ``n_ticks`` more log rows at once (batch; ``run`` calls it)."""
@@ -569,20 +632,23 @@ class Simulation:
         )
         # The last applied duty (the IS pin reads within its PWM period, sim.bridge.read_adc).
         duty, enable = self._duty.astype(float), self._enable.astype(bool)
-        if self._logs_of is not self._xlog:  # a new log allocation (or the first call)
+        if self._logs_of is not self._plog:  # a new log allocation (or the first call)
+            # A column the log does not keep is (0, N): the compiled tick writes none.
+            empty = np.empty((0, n))
             if keep:
                 arrays = self._arrays
                 self._logs = (
-                    self._xlog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
-                    arrays["bus_v"], arrays["winding_c"],
+                    self._plog, tuple(arrays[f] for f in FW_FIELDS), arrays["voltage_v"],
+                    arrays.get("bus_v", empty), arrays.get("winding_c", empty),
+                    self._plant_consts,
                 )  # fmt: skip
             else:
-                empty = np.empty((0, n))
                 ints = np.empty((0, n), dtype=np.int64)
                 self._logs = (
-                    np.empty((0, n, 5)), (empty,) * 9 + (ints, ints), empty, empty, empty,
+                    np.empty((len(PLANT_LOG), 0, n)), (empty,) * 9 + (ints, ints), empty, empty,
+                    empty, self._plant_consts,
                 )  # fmt: skip
-            self._logs_of = self._xlog
+            self._logs_of = self._plog
         logs = self._logs
         bridge_params = (self._arr_n, self._vs_n, self._shifts)
         adc_params = (self._a_per_lsb_n, self._adc_noise_n, self._sense_table)
@@ -729,9 +795,13 @@ class Simulation:
             if k >= self._cap:
                 self._grow()
             # The plant state at the sampling instant, where the firmware sees it.
-            self._xlog[k] = x
-            self._arrays["bus_v"][k] = self.bus_v
-            self._arrays["winding_c"][k] = self.heat.winding_c()
+            self._log_plant(k, x)
+            if "bus_v" in self._arrays:
+                self._arrays["bus_v"][k] = self.bus_v
+            if "winding_c" in self._arrays:
+                self._arrays["winding_c"][k] = self.heat.winding_c()
+        if self._record_inputs:
+            self._states.append(x.copy())
         counts = self.encoder.read(x, self._noise_rows)
         spi = self.encoder.spi_frames()  # None: valid frames (no fault injected)
         if spi is None:  # (a firmware object of a test may not take the frames)

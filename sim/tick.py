@@ -126,8 +126,10 @@ def run_ticks(
     sense_sign, volt, duty, enable, counts, adc, bytes_per_s, values)`` (``values``: scratch
     for a telemetry frame's six float fields); ``plant = (keys, group,
     slots, phis, rates, consts, levels, budget, bus, heat)`` (``bus``: ``sim.supply.Bus``'s
-    arrays, ``heat``: ``sim.thermal.Heat``'s); ``logs = (xlog, signals (11 arrays of
-    (capacity, N)), voltage, bus_v, winding_c)``;
+    arrays, ``heat``: ``sim.thermal.Heat``'s); ``logs = (plant (5, capacity, N): the
+    columns of ``sim.loop.PLANT_LOG``, signals (11 arrays of (capacity, N), the setpoint's
+    three (capacity, 1)), voltage, bus_v, winding_c ((0, N) when constant), plant_consts
+    (3, N): degrees per radian of the axis, the total ratio, degrees per radian)``;
     ``tables``: ``(firmware_model.tick.TABLES, HEARTBEAT_TABLES)``, the framers' tables;
     ``enc_faults``: ``Encoder.fault_args`` (used while ``flags[F_ENC_FAULT]``)."""
     P, C, S, G, K = law
@@ -138,9 +140,10 @@ def run_ticks(
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps, values = sim[8:]
     keys, group, slots, phis, rates, consts, levels, budget, bus, heat = plant
-    xlog, signals, voltage, bus_log, winding_log = logs
+    plog, signals, voltage, bus_log, winding_log, plant_consts = logs
     heat_on = heat[0].shape[0] > 0
-    temps, reference_c = heat[0], heat[5]
+    temps = heat[0]
+    deg_axis, n_total, rad2deg = plant_consts[0], plant_consts[1], plant_consts[2]
     # The log columns as locals: an array taken from a tuple inside the member loop would
     # cost a reference count increment and decrement per member and column.
     sig0, sig1, sig2, sig3, sig4, sig5, sig6, sig7, sig8, sig9, sig10 = signals
@@ -169,15 +172,24 @@ def run_ticks(
                 draw = enc_block[ctx[CX_ENC_ROW]]
                 ctx[CX_ENC_ROW] += 1
             if keep:
+                # The plant's log columns (sim.loop.PLANT_LOG), as the log shows them.
                 # Element loops, not slice assignments: those compile numba's shape-error
                 # formatting (a tenth of the whole compile time) for an error that cannot
                 # happen here.
-                bus_src = bus_v if bus_v.shape[0] else supply_v
                 for j in range(n):
-                    for q in range(5):
-                        xlog[k, j, q] = x[j, q]
-                    bus_log[k, j] = bus_src[j]
-                    winding_log[k, j] = temps[j, 0] if heat_on else reference_c[j]
+                    pos = x[j, 1]
+                    plog[0, k, j] = pos * deg_axis[j]
+                    plog[1, k, j] = x[j, 2] * deg_axis[j]
+                    plog[2, k, j] = (pos / n_total[j] - x[j, 3]) * rad2deg[j]
+                    plog[3, k, j] = pos
+                    plog[4, k, j] = x[j, 0]
+                # The bus voltage and the winding temperature where they change (else (0, N)).
+                if bus_log.shape[0]:
+                    for j in range(n):
+                        bus_log[k, j] = bus_v[j]
+                if winding_log.shape[0]:
+                    for j in range(n):
+                        winding_log[k, j] = temps[j, 0]
             _read(
                 x, latency, offset, enc_noise, draw, counts_per_rad, counts_per_rev, counts, enc_inl
             )
@@ -313,10 +325,11 @@ def run_ticks(
         # LOG
         if keep:
             sp_pos, sp_vel, sp_acc = fs[FS_SP_POS], fs[FS_SP_VEL], fs[FS_SP_ACC]
+            # The setpoint, shared by the batch: one value a tick.
+            sig0[k, 0] = sp_pos
+            sig1[k, 0] = sp_vel
+            sig2[k, 0] = sp_acc
             for j in range(n):
-                sig0[k, j] = sp_pos
-                sig1[k, j] = sp_vel
-                sig2[k, j] = sp_acc
                 sig3[k, j] = P[P_POS, j]
                 sig4[k, j] = P[P_VEL, j]
                 sig5[k, j] = P[P_VEL_RAW, j]

@@ -129,7 +129,7 @@ def _replayed(overrides: dict, t_end_s: float, k0: int):
     log = result.log
     duty, enable = sim.inputs()
     k1 = len(log)
-    x0 = np.append(sim._xlog[k0, 0], log.bus_v[k0])
+    x0 = np.append(sim.states()[k0, 0], log.bus_v[k0])
     ref = replay(sim.bench.plant, duty[k0 : k1 - 1], enable[k0 : k1 - 1], sim.h_s, x0=x0)
     return sim, log, ref
 
