@@ -1,9 +1,10 @@
 """Speed of the simulation (not a test; the numbers go to docs/benchmarks.md, "Simulation").
 
-Paired against a reference tree (``--ref``, e.g. a checkout of the commit before issue 12),
-each measurement alternating between the two trees in fresh interpreters, round after
-round, so that both see the same machine load; the table gives the medians over the rounds
-and the median of the per-round ratios, in wall time and again in CPU time (user + sys of
+Paired against reference trees (``--ref``, e.g. a checkout of the commit before issue 12,
+and ``--ref NAME=PATH`` again for another, e.g. main before a change), each measurement
+alternating between the trees in fresh interpreters, round after round, so that all see
+the same machine load; the table gives the medians over the rounds and the median of the
+per-round ratios of this tree to each reference, in wall time and again in CPU time (user + sys of
 the process, which a loaded machine disturbs far less). All runs use the full firmware model on
 ``bench_configs/paper_bench.toml`` driven by the paper's Fig. 8 script (``fig8.toml``, cut
 to the simulated time given), encoder noise on, telemetry framed every tick and decoded by
@@ -22,6 +23,7 @@ the simulated PC (``RunResult.telemetry_arrays``):
 Usage::
 
     python3 benchmarks/bench_sim.py --ref /tmp/ref_tree [--rounds 3] [--skip-commands]
+    python3 benchmarks/bench_sim.py --ref /tmp/ref_tree --ref main=/tmp/main_tree --paired-only
     python3 benchmarks/bench_sim.py --ref /tmp/ref_tree --paired-only   # 1 and 2 only
 """
 
@@ -249,11 +251,11 @@ def paired(
         rows = [row(m) for m in results[name]]
         med = [statistics.median(c) for c in zip(*rows, strict=True)]
         print(f"| {name} | {med[0]:,.0f} | {med[1]:,.0f} | {med[2]:,.0f} | {med[3]:.2f} |")
-    if len(trees) == 2:
-        (a, ra), (b, rb) = results.items()
+    b = list(trees)[-1]  # this tree, against each reference
+    for a in list(trees)[:-1]:
         ratios = [
             [nb / na for na, nb in zip(row(x), row(y), strict=True)][:3]
-            for x, y in zip(ra, rb, strict=True)
+            for x, y in zip(results[a], results[b], strict=True)
         ]
         med = [statistics.median(c) for c in zip(*ratios, strict=True)]
         print(
@@ -335,7 +337,11 @@ def serve_hour(hours: float, chunk: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--ref", help="a reference tree (e.g. a checkout of the previous commit)")
+    ap.add_argument(
+        "--ref", action="append", default=[],
+        help="a reference tree, PATH or NAME=PATH (e.g. a checkout of the previous commit); "
+        "again for another",
+    )  # fmt: skip
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--batch", type=int, default=256)
     ap.add_argument("--batch-s", type=float, default=2.0, help="simulated s of the batch run")
@@ -346,7 +352,11 @@ def main() -> None:
     ap.add_argument("--ivp-s", type=float, default=1.0, help="simulated s of the ivp loop")
     args = ap.parse_args()
     here = str(Path(__file__).resolve().parents[1])
-    trees = {"reference": args.ref, "this tree": here} if args.ref else {"this tree": here}
+    trees = {}
+    for k, ref in enumerate(args.ref):
+        name, _, path = ref.rpartition("=")
+        trees[name or ("reference" if k == 0 else f"reference {k + 1}")] = path
+    trees["this tree"] = here
     print(f"[1, 2] paired runs, {args.rounds} rounds, wall clock ({_load()} at the start)")
     paired(trees, args.rounds, args.batch, args.batch_s)
     print(f"[1, 2] the same in CPU time (user + sys) ({_load()} at the start)")

@@ -28,6 +28,7 @@ are then all valid, with OCF set and the nominal AGC), so a healthy run builds n
 from __future__ import annotations
 
 import math
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -78,6 +79,9 @@ class Encoder:
         self._params: tuple[np.ndarray, ...] = ()
         self.block = np.empty((0, 0))
         self.row = 0
+        # refill's draw of the rest of a block into _full, on the drawing thread, if any.
+        self._rest: Future[np.ndarray] | None = None
+        self._full: np.ndarray | None = None
         self._fault = np.zeros(0, dtype=np.int64)  # per member: index into FAULT_KINDS
         self._frozen_counts = np.zeros(0)
         self._last = np.zeros(0, dtype=np.int64)
@@ -95,6 +99,7 @@ class Encoder:
         """
         if kind not in FAULT_KINDS:
             raise ValueError(f"kind = {kind!r}: must be one of {FAULT_KINDS}")
+        self.finish()  # the LCG's seed comes from rng after the noise drawn so far
         if x is not None:
             x = np.atleast_2d(np.asarray(x, dtype=float))
         n = self._n or (x.shape[0] if x is not None else 1)
@@ -146,22 +151,53 @@ class Encoder:
             self._inl = inl_params(p, n)
         return (*self._params, self._counts_per_rad, self.counts_per_rev, self._inl)
 
-    def refill(self, n: int, rows: int = _BLOCK) -> None:
+    def refill(self, n: int, rows: int = _BLOCK, head: int = 0) -> None:
         """Draw the next block of standard normals (a numpy call per read would cost more
         than the read); ``block`` and ``row`` are the compiled loop's too. ``rows``: ticks
         in the block; the generator's stream is the same whatever the blocks' sizes, so a
-        caller whose ``rng`` feeds nothing else may draw only the ticks it will run."""
-        self.block = self.rng.standard_normal((rows, n))
+        caller whose ``rng`` feeds nothing else may draw only the ticks it will run.
+
+        ``0 < head < rows``: only the first ``head`` rows are drawn here (``block`` holds
+        them) and the rest on a thread, into the same array, while the caller runs the
+        first ones (numpy draws without the GIL, the compiled tick runs without it: the
+        draws of a batch run take the second core); ``finish()`` waits for them. The same
+        numbers in the same order either way."""
+        self.finish()
+        if 0 < head < rows:
+            full = np.empty((rows, n))
+            self.rng.standard_normal(out=full[:head])
+            self._rest = _drawer().submit(self.rng.standard_normal, out=full[head:])
+            self._full = full
+            self.block = full[:head]
+        else:
+            self.block = self.rng.standard_normal((rows, n))
         self.row = 0
 
-    def read(self, x: np.ndarray, rows: int = _BLOCK) -> np.ndarray:
+    @property
+    def drawing(self) -> bool:
+        """Whether ``refill`` is still drawing the rest of the block on its thread."""
+        return self._rest is not None
+
+    def finish(self) -> None:
+        """Wait for the rows ``refill`` draws on a thread; ``block`` then holds them all
+        (nothing else may draw from ``rng`` before: every user of it calls this first)."""
+        if self._rest is not None:
+            self._rest.result()
+            self._rest = None
+            self.block, self._full = self._full, None
+
+    def read(self, x: np.ndarray, rows: int = _BLOCK, head: int = 0) -> np.ndarray:
         """Counts in ``[0, counts_per_rev)`` (int64 ``(N,)``) for states ``(N, 5)``;
-        ``rows``: the size of a block of draws it has to draw (``refill``)."""
+        ``rows``, ``head``: the size of a block of draws it has to draw, and of its part
+        drawn at once (``refill``)."""
         n = x.shape[0]
         params = self.kernel_params(n)
         if self._noisy:
             if self.row == self.block.shape[0]:
-                self.refill(n, rows)
+                if self.drawing:
+                    self.finish()
+                else:
+                    self.refill(n, rows, head)
             draw = self.block[self.row]
             self.row += 1
         else:
@@ -206,6 +242,16 @@ def inl_counts(theta_rad, a1, p1, a2, p2):
 
 
 _NO_DRAW = np.empty(0)
+_DRAWER: list[ThreadPoolExecutor] = []
+
+
+def _drawer() -> ThreadPoolExecutor:
+    """The one thread that draws the rest of the encoder's blocks (``Encoder.refill``),
+    started at its first use and kept (starting a thread per block cost more than the
+    draws it saved)."""
+    if not _DRAWER:
+        _DRAWER.append(ThreadPoolExecutor(1, thread_name_prefix="encoder-noise"))
+    return _DRAWER[0]
 
 
 @kernel
@@ -214,6 +260,9 @@ def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_p
     nothing for a noiseless encoder; ``inl`` the ``inl_params`` rows, or none."""
     noisy = draw.shape[0] > 0
     nonlinear = inl.shape[0] > 0
+    # A power of two (the AS5048's 16384): the floored modulo is a mask, not a division.
+    mask = counts_per_rev - 1
+    pow2 = counts_per_rev > 0 and (counts_per_rev & mask) == 0
     for j in range(x.shape[0]):
         theta = x[j, POS] - x[j, VEL] * latency_s[j]
         c = theta * counts_per_rad + offset_counts[j]
@@ -221,7 +270,8 @@ def _read(x, latency_s, offset_counts, noise_lsb, draw, counts_per_rad, counts_p
             c += inl_counts(theta, inl[j, 0], inl[j, 1], inl[j, 2], inl[j, 3])
         if noisy:
             c += noise_lsb[j] * draw[j]
-        out[j] = np.int64(math.floor(c)) % counts_per_rev  # floored modulo, as Python
+        f = np.int64(math.floor(c))
+        out[j] = (f & mask) if pow2 else f % counts_per_rev  # floored modulo, as Python
 
 
 @kernel

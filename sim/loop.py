@@ -319,6 +319,7 @@ class Simulation:
         # draw 4096 rows of N it never reads). With two, they alternate in whole blocks.
         self._sole_noise = self.encoder.noisy != self._adc_noisy
         self._noise_rows = BLOCK
+        self._noise_head = 0  # rows of a block drawn at once (the rest on a thread: _head)
         # ADC noise: standard normals drawn in blocks of 4096 periods x N, as the encoder's.
         self._adc_block = np.empty((0, n))
         self._adc_row = 0
@@ -589,6 +590,15 @@ class Simulation:
         # At least 64: a caller stepping a few ticks at a time (serve) draws rarely.
         return min(BLOCK, max(64, ticks * per_tick))
 
+    def _head(self, rows: int) -> int:
+        """Rows of a block of encoder noise to draw at once, the rest on a thread while the
+        compiled tick runs the first (``Encoder.refill``): an eighth of a large block of the
+        sole noise source (then nothing else draws from the generator meanwhile); 0 (all at
+        once) for a block too small to gain from it (N = 1: ~1,000 draws)."""
+        if self._sole_noise and rows * self.n >= 1 << 15:
+            return max(1, rows // 8)
+        return 0
+
     def _run_compiled(self, n_ticks: int) -> None:
         """``n_ticks`` ticks in the compiled tick (``sim.tick.run_ticks``), handling its
         events here (see ``sim/tick.py``)."""
@@ -731,8 +741,11 @@ class Simulation:
             elif code == st.STOP_NOISE:
                 rows = self._rows(k_end - int(ctx[st.CX_K]))
                 if ctx[st.CX_STAGE] == st.TOP:
-                    enc.refill(n, rows)
-                    ctx[st.CX_ENC_ROW] = 0
+                    if enc.drawing:  # the rest of the block: drawn on refill's thread
+                        enc.finish()
+                    else:
+                        enc.refill(n, rows, self._head(rows))
+                        ctx[st.CX_ENC_ROW] = 0
                 else:
                     self._adc_block = self._rng.standard_normal((rows, n))
                     self._adc_row = 0
@@ -745,6 +758,7 @@ class Simulation:
                 if self._pc_out:
                     del self._pc_out[: rx.write(bytes(self._pc_out[: rx.free]))]
                 self._rx_for_board = rx.advance(self.dt_s) if rx.pending else b""
+        enc.finish()  # every draw of this call made: the generator is free
         self._x = x0
         self._x_spare = x1
         plant._last_x = x0 if ctx[st.CX_KNOWN] else plant._last_x
@@ -802,7 +816,7 @@ class Simulation:
                 self._arrays["winding_c"][k] = self.heat.winding_c()
         if self._record_inputs:
             self._states.append(x.copy())
-        counts = self.encoder.read(x, self._noise_rows)
+        counts = self.encoder.read(x, self._noise_rows, self._noise_head)
         spi = self.encoder.spi_frames()  # None: valid frames (no fault injected)
         if spi is None:  # (a firmware object of a test may not take the frames)
             tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,

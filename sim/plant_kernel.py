@@ -41,9 +41,12 @@ _B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6
 # consts[...] indices.
 (
     _WBM, _WBP, _HALF, _K, _C, _N, _VS, _R, _KE, _ICL, _VD2, _INV_N, _KT, _TCM, _BM, _G_MAX,
-    _JM, _TCP, _BP, _JP, _H_S, _ETA, _TSM, _WSM, _TSP, _WSP,
-) = range(26)  # fmt: skip
-N_CONSTS = 26
+    _JM, _TCP, _BP, _JP, _H_S, _ETA, _TSM, _WSM, _TSP, _WSP, _INV_R, _INV_JM, _INV_JP,
+) = range(29)  # fmt: skip
+N_CONSTS = 29
+# _INV_*: 1 / R, 1 / J_m, 1 / J_p, for _excursion's quick bound (never for a result).
+# _excursion's quick bounds: 1 + this covers their rounding against the exact gates'.
+_MARGIN = 1.0 + 1e-9
 # Mechanical modes per bridge mode (sim.plant.MECH_MODES) and the stuck power-flow mode.
 _MECH = 225
 _F_STUCK = 2
@@ -60,6 +63,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     values.append(float(h_s))
     values.append(float(co.eta))
     values += [float(co.tsm), float(co.wsm), float(co.tsp), float(co.wsp)]
+    values += [1.0 / float(co.r), 1.0 / float(co.jm), 1.0 / float(co.jp)]
     return np.array(values)
 
 
@@ -185,6 +189,47 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
+@kernel(error_model="numpy", inline="always")
+def _apart(p0, p1, m0, m1, edge):
+    """``hermite_leaves``' first test where it is called (a call costs more than the test):
+    True if both ends are farther from both edges than the change over the step, so the
+    cubic cannot leave their region."""
+    reach = abs(m0) + abs(m1) + abs(p1 - p0)
+    d0 = abs(p0) - edge
+    d1 = abs(p1) - edge
+    return (d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach)
+
+
+@kernel(error_model="numpy", inline="always")
+def gates(wmax, ai, tbmax, apmax, h, kc):
+    """``_excursion``'s gates ``(motor, platter)`` (rad/s): the speeds below which a step of
+    ``h`` may reach a friction band, from the largest current the armature can approach
+    (``(V_s + K_e |w|) / R``, or ``ai`` if more), the speeds' ends ``wmax``, ``apmax`` and the
+    belt torque's bound ``tbmax``."""
+    i_bound = (kc[_VS] + kc[_KE] * wmax) / kc[_R]
+    if ai > i_bound:
+        i_bound = ai
+    a_m = (kc[_KT] * i_bound + kc[_TSM] + kc[_BM] * wmax + tbmax * kc[_G_MAX]) / kc[_JM]
+    a_p = (2.0 * tbmax + kc[_TSP] + kc[_BP] * apmax) / kc[_JP]
+    # the outer edges (the bands' without stiction)
+    return kc[_WSM] + h * a_m, kc[_WSP] + h * a_p
+
+
+@kernel(error_model="numpy", inline="always")
+def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
+    """Upper bounds of ``gates`` without a division (reciprocals from ``pack_consts``): the
+    same sums of magnitudes, so the two differ by a few ulps, which ``_MARGIN`` covers (a
+    speed beyond its bound is beyond its gate, whatever the rounding)."""
+    i_ub = (abs(kc[_VS]) + abs(kc[_KE]) * wmax) * kc[_INV_R]
+    if ai > i_ub:
+        i_ub = ai
+    a_m = abs(kc[_KT]) * i_ub + abs(kc[_TSM]) + abs(kc[_BM]) * wmax + tbmax * abs(kc[_G_MAX])
+    a_p = 2.0 * tbmax + abs(kc[_TSP]) + abs(kc[_BP]) * apmax
+    ub_m = (abs(kc[_WSM]) + h * a_m * kc[_INV_JM]) * _MARGIN
+    ub_p = (abs(kc[_WSP]) + h * a_p * kc[_INV_JP]) * _MARGIN
+    return ub_m, ub_p
+
+
 @kernel(error_model="numpy")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
@@ -200,9 +245,8 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     acceleration cannot reach the band and is not interpolated: the motor's bound uses the
     largest current the armature can approach, ``(V_s + |K_e w|) / R``; the platter's twice
     the belt torque at the ends plus its friction."""
-    inv_n, half, k, c, vs, ke, r = kc[_INV_N], kc[_HALF], kc[_K], kc[_C], kc[_VS], kc[_KE], kc[_R]
-    kt, bm, g_max, jm, wbm = kc[_KT], kc[_BM], kc[_G_MAX], kc[_JM], kc[_WBM]
-    bp, jp, wbp, icl = kc[_BP], kc[_JP], kc[_WBP], kc[_ICL]
+    inv_n, half, k, c = kc[_INV_N], kc[_HALF], kc[_K], kc[_C]
+    wbm, wbp, icl = kc[_WBM], kc[_WBP], kc[_ICL]
     r0 = w0 * inv_n - p0
     r1 = w1 * inv_n - p1
     ar0, ar1 = abs(r0), abs(r1)
@@ -223,7 +267,8 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
         )  # fmt: skip
         di0 = c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6
         di1 = c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6
-        if hermite_leaves(i0, i1, di0 * h, di1 * h, icl):
+        m0, m1 = di0 * h, di1 * h
+        if not _apart(i0, i1, m0, m1, icl) and hermite_leaves(i0, i1, m0, m1, icl):
             return True
     # Scalar loads, no views (a view costs reference counting in numba).
     v0, v2, v3, v4, v6 = (
@@ -244,25 +289,28 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
         tb1 = k * (t1 - sh) + c * r1
         tbd0 = k * r0 + c * (wd0 * inv_n - pd0)
         tbd1 = k * r1 + c * (wd1 * inv_n - pd1)
-        if hermite_leaves(tb0, tb1, tbd0 * h, tbd1 * h, 0.0):
+        m0, m1 = tbd0 * h, tbd1 * h
+        if not _apart(tb0, tb1, m0, m1, 0.0) and hermite_leaves(tb0, tb1, m0, m1, 0.0):
             return True
     aw0, aw1 = abs(w0), abs(w1)
     wmax = aw0 if aw0 > aw1 else aw1
     tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
-    i_bound = (vs + ke * wmax) / r
     ai0, ai1 = abs(i0), abs(i1)
     ai = ai0 if ai0 >= ai1 else ai1
-    if ai > i_bound:
-        i_bound = ai
     # Friction bounds at their largest (the breakaway torque; Coulomb without stiction).
-    tsm, wsm, tsp, wsp = kc[_TSM], kc[_WSM], kc[_TSP], kc[_WSP]
-    a_m = (kt * i_bound + tsm + bm * wmax + tbmax * g_max) / jm
-    gate_m = wsm + h * a_m  # the outer edge (the band's without stiction)
-    check_m = aw0 <= gate_m or aw1 <= gate_m
+    wsm, wsp = kc[_WSM], kc[_WSP]
     ap0, ap1 = abs(p0), abs(p1)
-    a_p = (2.0 * tbmax + tsp + bp * (ap0 if ap0 > ap1 else ap1)) / jp
-    gate_p = wsp + h * a_p
-    check_p = ap0 <= gate_p or ap1 <= gate_p
+    apmax = ap0 if ap0 > ap1 else ap1
+    # First the gates' upper bounds without a division (the exact gates divide twice in a
+    # row: most of this function's time): a speed beyond its bound is beyond its gate.
+    ub_m, ub_p = gate_bounds(wmax, ai, tbmax, apmax, h, kc)
+    check_m = not (aw0 > ub_m and aw1 > ub_m)
+    check_p = not (ap0 > ub_p and ap1 > ub_p)
+    if not (check_m or check_p):
+        return False
+    gate_m, gate_p = gates(wmax, ai, tbmax, apmax, h, kc)
+    check_m = check_m and (aw0 <= gate_m or aw1 <= gate_m)
+    check_p = check_p and (ap0 <= gate_p or ap1 <= gate_p)
     if not (check_m or check_p):
         return False
     if check_m and (

@@ -112,7 +112,8 @@ _pace = kernel(uart.pace)
 _servo_stage = kernel(inline="always")(servo_stage.py_func)
 
 
-@kernel
+# nogil: the rest of a block of encoder noise is drawn on a thread meanwhile (Encoder.refill).
+@kernel(nogil=True)
 def run_ticks(
     k_end, ctx, credit, flags, law, fw, sim, plant, logs, txbuf, tables, enc_faults,
 ):  # fmt: skip

@@ -207,3 +207,33 @@ print(len(plant_kernel.step_members.signatures), len(plant_kernel.key.signatures
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["1", "1"]
+
+
+_MAGNITUDE = st.floats(-12.0, 6.0).map(lambda e: 10.0**e)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    wmax=_MAGNITUDE, ai=_MAGNITUDE, tbmax=_MAGNITUDE, apmax=_MAGNITUDE, level=st.integers(0, 20),
+    scale=st.lists(st.floats(0.05, 20.0), min_size=6, max_size=6), stiction=st.booleans(),
+)  # fmt: skip
+def test_the_excursion_gates_quick_bounds_are_never_below_the_gates(
+    wmax, ai, tbmax, apmax, level, scale, stiction
+):
+    # _excursion skips its exact gates (two divisions in a row) when both speeds are beyond
+    # the bounds: bit-identical only if a bound is never below its gate, whatever the
+    # rounding (R, Ke, Kt, J_m, J_p, supply scaled; with and without stiction).
+    r, ke, kt, jm, jp, vs = scale
+    base = PlantParams()
+    motor = dataclasses.replace(
+        base.motor, r_ohm=1.2 * r, ke_v_s_rad=0.0145 * ke, kt_nm_a=0.0145 * kt,
+        stiction_nm=0.006 if stiction else 0.0, stribeck_rad_s=0.5 if stiction else 0.0,
+    )  # fmt: skip
+    params = dataclasses.replace(base, motor=motor)
+    co = Plant(params, 1, DT_S).co
+    co = dataclasses.replace(co, jm=co.jm * jm, jp=co.jp * jp, vs=co.vs * vs)
+    kc = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), DT_S)
+    h = DT_S / (1 << level)
+    gates = plant_kernel.gates.py_func(wmax, ai, tbmax, apmax, h, kc)
+    bounds = plant_kernel.gate_bounds.py_func(wmax, ai, tbmax, apmax, h, kc)
+    assert bounds[0] >= gates[0] and bounds[1] >= gates[1]
