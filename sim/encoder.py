@@ -196,8 +196,10 @@ class Encoder:
             if self.row == self.block.shape[0]:
                 if self.drawing:
                     self.finish()
-                else:
+                elif head:
                     self.refill(n, rows, head)
+                else:
+                    self.refill(n, rows)
             draw = self.block[self.row]
             self.row += 1
         else:

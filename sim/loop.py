@@ -741,10 +741,14 @@ class Simulation:
             elif code == st.STOP_NOISE:
                 rows = self._rows(k_end - int(ctx[st.CX_K]))
                 if ctx[st.CX_STAGE] == st.TOP:
+                    head = self._head(rows)
                     if enc.drawing:  # the rest of the block: drawn on refill's thread
                         enc.finish()
+                    elif head:
+                        enc.refill(n, rows, head)
+                        ctx[st.CX_ENC_ROW] = 0
                     else:
-                        enc.refill(n, rows, self._head(rows))
+                        enc.refill(n, rows)
                         ctx[st.CX_ENC_ROW] = 0
                 else:
                     self._adc_block = self._rng.standard_normal((rows, n))
