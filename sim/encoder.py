@@ -28,6 +28,7 @@ are then all valid, with OCF set and the nominal AGC), so a healthy run builds n
 from __future__ import annotations
 
 import math
+import os
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
@@ -244,16 +245,18 @@ def inl_counts(theta_rad, a1, p1, a2, p2):
 
 
 _NO_DRAW = np.empty(0)
-_DRAWER: list[ThreadPoolExecutor] = []
+_DRAWER: dict[int, ThreadPoolExecutor] = {}
 
 
 def _drawer() -> ThreadPoolExecutor:
     """The one thread that draws the rest of the encoder's blocks (``Encoder.refill``),
     started at its first use and kept (starting a thread per block cost more than the
-    draws it saved)."""
-    if not _DRAWER:
-        _DRAWER.append(ThreadPoolExecutor(1, thread_name_prefix="encoder-noise"))
-    return _DRAWER[0]
+    draws it saved); one per process (a forked child has no thread of its parent's)."""
+    pid = os.getpid()
+    if pid not in _DRAWER:
+        _DRAWER.clear()
+        _DRAWER[pid] = ThreadPoolExecutor(1, thread_name_prefix="encoder-noise")
+    return _DRAWER[pid]
 
 
 @kernel

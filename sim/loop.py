@@ -319,7 +319,6 @@ class Simulation:
         # draw 4096 rows of N it never reads). With two, they alternate in whole blocks.
         self._sole_noise = self.encoder.noisy != self._adc_noisy
         self._noise_rows = BLOCK
-        self._noise_head = 0  # rows of a block drawn at once (the rest on a thread: _head)
         # ADC noise: standard normals drawn in blocks of 4096 periods x N, as the encoder's.
         self._adc_block = np.empty((0, n))
         self._adc_row = 0
@@ -820,7 +819,7 @@ class Simulation:
                 self._arrays["winding_c"][k] = self.heat.winding_c()
         if self._record_inputs:
             self._states.append(x.copy())
-        counts = self.encoder.read(x, self._noise_rows, self._noise_head)
+        counts = self.encoder.read(x, self._noise_rows)
         spi = self.encoder.spi_frames()  # None: valid frames (no fault injected)
         if spi is None:  # (a firmware object of a test may not take the frames)
             tx = fw.servo_tick(int(counts[0]) if scalar else counts, self._rx_for_board,
