@@ -10,7 +10,8 @@ matplotlib and the results already in memory); where ``fork`` is not available, 
 one core is, everything is drawn here, in order, as before.
 
 A job is a module-level function and its arguments (they travel to the worker pickled);
-what it returns is dropped (a ``Figure`` is not worth sending back).
+what it returns is dropped (a ``Figure`` is not worth sending back). If the worker cannot
+start or dies (killed, out of memory), this process does its jobs.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import multiprocessing
 import os
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
@@ -69,10 +71,14 @@ class Drawer:
 
     def submit(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         """Run ``fn(*args, **kwargs)`` in a worker (or here, now, without one)."""
-        if self._pool is None:
-            fn(*args, **kwargs)
+        if self._pool is not None:
+            try:
+                future = self._pool.submit(_call, fn, args, kwargs)
+            except (OSError, BrokenProcessPool):  # no worker could start (fork refused)
+                future = None
+            self._jobs.append(_Job(fn, args, kwargs, future))
             return
-        self._jobs.append(_Job(fn, args, kwargs, self._pool.submit(_call, fn, args, kwargs)))
+        fn(*args, **kwargs)
 
     def finish(self) -> None:
         """Run here what no worker has started (newest first: a worker takes the oldest),
@@ -81,12 +87,16 @@ class Drawer:
             return
         try:
             for job in reversed(self._jobs):
-                if job.future is not None and job.future.cancel():
+                if job.future is None or job.future.cancel():
                     job.fn(*job.args, **job.kwargs)
                     job.future = None
             for job in self._jobs:
-                if job.future is not None:
+                if job.future is None:
+                    continue
+                try:
                     job.future.result()
+                except BrokenProcessPool:  # the worker died (killed, out of memory): redo it
+                    job.fn(*job.args, **job.kwargs)
         finally:
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None

@@ -41,3 +41,23 @@ def test_a_job_that_fails_raises_in_the_caller(tmp_path):
         with Drawer(1 if worker_count() else 0) as drawer:
             drawer.submit(_write, tmp_path / "a.txt", 1)
             drawer.submit(_fail, "bad figure")
+
+
+def _die(parent_pid, path):
+    if os.getpid() != parent_pid:
+        os._exit(9)  # a worker killed mid-job (out of memory, kill -9)
+    path.write_text("redone here")
+
+
+def test_jobs_of_a_worker_that_died_are_done_here(tmp_path):
+    if worker_count() == 0:
+        pytest.skip("no fork on this platform")
+    paths = [tmp_path / f"{k}.txt" for k in range(3)]
+    with Drawer(1) as drawer:
+        drawer.submit(_die, os.getpid(), tmp_path / "died.txt")
+        for k, p in enumerate(paths):
+            drawer.submit(_write, p, k)
+    for k, p in enumerate(paths):
+        text, _ = p.read_text().split()
+        assert text == str(k)
+    assert (tmp_path / "died.txt").read_text() == "redone here"
