@@ -39,8 +39,31 @@ def worker_count() -> int:
     return max(0, min(cores - 1, 3))
 
 
-def _call(fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
-    fn(*args, **kwargs)
+# Which jobs someone has started, shared with the forked worker (it inherits these: they
+# exist before the first job forks it). The worker and this process claim a job before
+# running it, so each runs once, with no Future.cancel() racing the pool's own bookkeeping.
+_MAX_JOBS = 4096
+_claims: Any = None
+_claims_lock: Any = None
+
+
+def _claim(slot: int) -> bool:
+    """Claim job ``slot`` for the calling process; False if it was taken."""
+    # A worker killed inside this critical section would leave the lock held: wait a
+    # little, then take the job anyway (running it twice is harmless, never is not).
+    locked = _claims_lock.acquire(timeout=5.0)
+    try:
+        taken = bool(_claims[slot])
+        _claims[slot] = 1
+        return not taken
+    finally:
+        if locked:
+            _claims_lock.release()
+
+
+def _call(slot: int, fn: Callable[..., Any], args: tuple, kwargs: dict) -> None:
+    if _claim(slot):
+        fn(*args, **kwargs)
 
 
 @dataclass
@@ -49,20 +72,23 @@ class _Job:
     args: tuple
     kwargs: dict
     future: Future | None
+    here: bool = False  # run by this process
 
 
 class Drawer:
     """Runs ``submit``-ted jobs in worker processes (``workers``, default
     :func:`worker_count`; 0: here, at once). Use as a context manager, or call
-    :meth:`finish`; an exception in a job is raised by :meth:`finish`."""
+    :meth:`finish`; an exception in a job is raised by :meth:`finish`. One drawer at a
+    time per process (the job claims are module-wide)."""
 
     def __init__(self, workers: int | None = None) -> None:
+        global _claims, _claims_lock
         n = worker_count() if workers is None else workers
-        self._pool = (
-            ProcessPoolExecutor(max_workers=n, mp_context=multiprocessing.get_context("fork"))
-            if n > 0
-            else None
-        )
+        self._pool = None
+        if n > 0:
+            ctx = multiprocessing.get_context("fork")
+            _claims, _claims_lock = ctx.RawArray("b", _MAX_JOBS), ctx.Lock()
+            self._pool = ProcessPoolExecutor(max_workers=n, mp_context=ctx)
         self._jobs: list[_Job] = []
 
     @property
@@ -71,9 +97,9 @@ class Drawer:
 
     def submit(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> None:
         """Run ``fn(*args, **kwargs)`` in a worker (or here, now, without one)."""
-        if self._pool is not None:
+        if self._pool is not None and len(self._jobs) < _MAX_JOBS:
             try:
-                future = self._pool.submit(_call, fn, args, kwargs)
+                future = self._pool.submit(_call, len(self._jobs), fn, args, kwargs)
             except (OSError, BrokenProcessPool):  # no worker could start (fork refused)
                 future = None
             self._jobs.append(_Job(fn, args, kwargs, future))
@@ -85,20 +111,25 @@ class Drawer:
         then wait for the rest; raises the first job's exception, if any."""
         if self._pool is None:
             return
+        broken = False
         try:
-            for job in reversed(self._jobs):
-                if job.future is None or job.future.cancel():
+            for slot in reversed(range(len(self._jobs))):
+                job = self._jobs[slot]
+                if _claim(slot) or job.future is None:
                     job.fn(*job.args, **job.kwargs)
-                    job.future = None
+                    job.here = True
             for job in self._jobs:
-                if job.future is None:
+                if job.here or job.future is None:
                     continue
                 try:
                     job.future.result()
                 except BrokenProcessPool:  # the worker died (killed, out of memory): redo it
+                    broken = True
                     job.fn(*job.args, **job.kwargs)
         finally:
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            # Drop the jobs this process took before they are sent to the worker; not once
+            # the pool is broken (its manager thread is failing the same futures then).
+            self._pool.shutdown(wait=True, cancel_futures=not broken)
             self._pool = None
             self._jobs = []
 
