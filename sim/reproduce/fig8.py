@@ -183,6 +183,32 @@ def run(runner: Runner, *, scurve_ramp_s: float | None = None) -> Fig8Result:
     return Fig8Result(trace, measure(trace, limit), _rows(trace, k), a_max, k, profile)
 
 
+def run_choices(runner: Runner) -> tuple[Fig8Result, Fig8Result]:
+    """Fig. 8 under two choices the paper leaves open (issue 13 §3): one a_max per move
+    matching Table 1 exactly (``sensitivity.TABLE1_A_MAX``), and no velocity or acceleration
+    feed-forward (the paper's Fig. 5 sends the position command only; ``sensitivity.FF_OFF``,
+    which raises the following-error trip to 360 deg so that the whole motion shows)."""
+    import dataclasses
+
+    from sim.loop import apply_overrides
+    from sim.reproduce.sensitivity import FF_OFF, table1_experiment
+
+    base = load("fig8")
+    out = []
+    for name, exp in (
+        ("fig8, a_max per move (Table 1)", table1_experiment()),
+        ("fig8, no feed-forward (Fig. 5)",
+         dataclasses.replace(base, bench=apply_overrides(base.bench, FF_OFF))),
+    ):  # fmt: skip
+        exp = runner.prepare(exp)
+        trace = runner.run(name, exp)
+        k = 4.0 if runner.quick else 1.0
+        limit = exp.bench.firmware.limits.current_limit_a
+        a_max = float(trace.command_a_max_dps2[0])
+        out.append(Fig8Result(trace, measure(trace, limit), _rows(trace, k), a_max, k, "trapezoid"))
+    return out[0], out[1]
+
+
 def plot(result: Fig8Result, path: str | Path | None, current_limit_a: float) -> Figure:
     """Fig. 8 drawn like the paper's: replan instants marked, and the paper's Table 1
     velocities crossed at the paper's times, so that the difference is visible (returns the

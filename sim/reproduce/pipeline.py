@@ -41,8 +41,8 @@ FIGURES = (
 TELEMETRY_DIR = "telemetry"
 # fig6 (2) + fig7 (4) + fig8 (1) + seed 002 (1) + S-curve fig7 (4) + fig8 (1) + look-ahead (2)
 # + programs and streams (3)
-_RUNS_ALL = 18
-_RUNS_PAPER = 7
+_RUNS_ALL = 20
+_RUNS_PAPER = 9
 
 
 @dataclass(frozen=True)
@@ -101,6 +101,7 @@ def reproduce(
         r6 = fig6.run(runner)
         r7 = fig7.run(runner)
         r8 = fig8.run(runner)
+        r8c = fig8.run_choices(runner)  # a_max per move; no feed-forward (section 3)
         drawer.submit(fig6.plot, r6, out / "fig6.png", limit_a)
         drawer.submit(fig7.plot, r7, out / "fig7.png", limit_a)
         drawer.submit(fig8.plot, r8, out / "fig8.png", limit_a)
@@ -149,6 +150,7 @@ def reproduce(
     from sim.reproduce.sensitivity import metric_spread
 
     measured = [(r6.step, None), (r6.planned, None), (r8.trace, None)]
+    measured += [(r.trace, None) for r in r8c]
     measured += [(r.trace, r.trace.command_t_s[-1]) for r in r7.runs]
     if sc is not None:  # measured as scurve_extras measures them (Fig. 7 from the interrupt)
         measured += [(r.trace, r.trace.command_t_s[-1]) for r in sc.fig7.runs]
@@ -164,6 +166,7 @@ def reproduce(
         fig6=r6,
         fig7=r7,
         fig8=r8,
+        fig8_choices=r8c,
         seed002=s2,
         scurve=sc,
         lookahead=la,

@@ -50,6 +50,8 @@ class ReportInputs:
     figures: tuple[str, ...]
     programs: programs_demo.ProgramsResult | None = None
     sensitivity: band.SensitivityResult | None = None
+    #: Fig. 8 under the paper's open choices: one a_max per move (Table 1), no feed-forward
+    fig8_choices: Sequence[fig8.Fig8Result] = ()
     #: run name -> RunMetrics field -> (mean, sd) over noise realisations
     noise: Mapping[str, Mapping[str, tuple[float, float]]] | None = None
     #: run name -> the run in its noise realisations (``Runner.copies_of``; copy 0 is the
@@ -350,7 +352,40 @@ def _consistency(inp: ReportInputs) -> list[str]:
         "a_max per move, or printed rounded states; it does not say.",
         "",
     ]
+    if len(inp.fig8_choices) == 2:
+        per_move, no_ff = inp.fig8_choices
+        base, k = inp.fig8, inp.fig8.time_scale
+        vels = "; ".join(
+            f"{row.paper_t_s:g} s: paper {row.paper_vel_dps:g}, one a_max "
+            f"{_ms(inp, base.trace.name, _vel_at(n), 1, k)}, per move "
+            f"{_ms(inp, per_move.trace.name, _vel_at(n), 1, k)} ({row_pm.sim_state})"
+            for n, (row, row_pm) in enumerate(zip(base.rows, per_move.rows, strict=True))
+            if n > 0
+        )
+        a_pm = " / ".join(f"{a:g}" for a in choices_a_max())
+        lines += [
+            f"**Run with one a_max per move** ({a_pm} deg/s², the only reading with one a_max per "
+            "move that fits; the fourth move is free and keeps 148), measured velocity "
+            f"(deg/s) when each command is applied: {vels}. Its metrics are the row "
+            f'"{per_move.trace.name}" of section 4.',
+            "",
+            "**Feed-forward.** The firmware's default adds velocity and acceleration "
+            "feed-forward to the position command (`[controller.position] vel_ff`, "
+            "`[controller.velocity] acc_ff_a_per_dps2`); the paper's Fig. 5 sends the position "
+            f'command only. The row "{no_ff.trace.name}" of section 4 is Fig. 8 without both '
+            "(the following-error trip raised to 360 deg, else it trips): max tracking error "
+            f"{_metric(inp, no_ff.trace.name, 'max_tracking_error_deg', 2)} deg against "
+            f"{_metric(inp, base.trace.name, 'max_tracking_error_deg', 3)} deg with them.",
+            "",
+        ]
     return lines
+
+
+def choices_a_max() -> tuple[float, ...]:
+    """The a_max of each move of the per-move run (``sensitivity.TABLE1_A_MAX``)."""
+    from sim.reproduce.sensitivity import TABLE1_A_MAX
+
+    return TABLE1_A_MAX
 
 
 def _faults(metrics: Sequence[RunMetrics]) -> str:
@@ -906,6 +941,7 @@ def write_report(inp: ReportInputs, path) -> None:
     runs = [inp.fig6.step_metrics, inp.fig6.planned_metrics]
     runs += [r.metrics for r in inp.fig7.runs]
     runs += [inp.fig8.metrics]
+    runs += [r.metrics for r in inp.fig8_choices]
     if inp.scurve is not None:
         runs += [r.metrics for r in inp.scurve.fig7.runs]
         runs += [inp.scurve.fig8.metrics]
