@@ -826,7 +826,7 @@ def _link(inp: ReportInputs, traces: Sequence[Trace]) -> list[str]:
 
 def _all_traces(inp: ReportInputs) -> list[Trace]:
     traces = [inp.fig6.step, inp.fig6.planned, inp.fig8.trace]
-    traces += [r.trace for r in inp.fig7.runs]
+    traces += [r.trace for r in inp.fig7.runs] + [r.trace for r in inp.fig8_choices]
     if inp.scurve is not None:
         traces += [inp.scurve.fig8.trace] + [r.trace for r in inp.scurve.fig7.runs]
     if inp.lookahead is not None:  # the queue run's refusals are counted in section 7

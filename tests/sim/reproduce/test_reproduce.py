@@ -217,7 +217,7 @@ def test_every_move_of_every_run_was_acknowledged(output):
     from sim.reproduce.report import _all_traces
 
     traces = _all_traces(output.inputs)
-    assert len(traces) == 14  # the queue runs (answered by QueueStatus) are checked apart
+    assert len(traces) == 16  # with Fig. 8 per move and without feed-forward; queue runs apart
     for trace in traces:
         assert trace.nacks == (), trace.name
         assert len(trace.acks) == len(trace.command_t_s), trace.name
@@ -345,6 +345,7 @@ def _all_decoded(inp):
     traces += [r.trace for r in inp.fig7.runs] + [r.trace for r in inp.scurve.fig7.runs]
     traces += [inp.scurve.fig8.trace, inp.lookahead.queue, inp.lookahead.stop_each]
     traces += [inp.programs.queue, inp.programs.stop_each, inp.programs.stream]
+    traces += [r.trace for r in inp.fig8_choices]  # a_max per move, no feed-forward
     return traces
 
 
