@@ -610,6 +610,8 @@ class Simulation:
         if keep and (k_end > self._cap or not self._arrays):
             self._grow(k_end)
         law, plant, enc = fw.law, self.plant, self.encoder
+        if law.fixed not in _LOADED:
+            _compile_plant_aside(self)
         ctx, flags, credit, values, en_now, counts, adc = self._scratch
         ctx[:] = 0
         ctx[st.CX_K] = self.tick
@@ -697,6 +699,7 @@ class Simulation:
                 with compile_notice():
                     code = st.run_ticks(*args)
                 _LOADED.add(law.fixed)
+                _end_aside()
             # Catch up: the firmware's attributes, the TX line, the clock and the state.
             fw._unpack()
             txlen, shifted = int(ctx[st.CX_TXLEN]), int(ctx[st.CX_SHIFTED])
@@ -935,6 +938,71 @@ def run(
 
 # The arithmetics whose compiled tick this process has loaded.
 _LOADED: set[bool] = set()
+_ASIDE: list[Any] = []  # the second compiling process of _compile_plant_aside (one try)
+_ASIDE_CODE = (
+    "import pickle, sys; sys.path.insert(0, {root!r}); "
+    "from sim.supply import step_period; "
+    "step_period.compile(pickle.loads(sys.stdin.buffer.read()))"
+)
+
+
+def _compile_plant_aside(sim: Simulation) -> None:
+    """With an empty numba cache the first ``run_ticks`` of a process compiles for ~20 s;
+    the plant's step (``sim.supply.step_period``, ~5.6 s of it) depends on nothing else of
+    the tick, so a second process compiles it meanwhile (2 cores) and ``run_ticks`` loads it
+    from the cache when its typing reaches the call, ~6 s in (numba's dispatcher looks in the
+    cache before it compiles). If the second process cannot start, or lags, the tick
+    compiles the step itself: the same machine code either way. Does nothing once the step
+    is in the cache (its index is read, the step not loaded)."""
+    if _ASIDE:
+        return
+    _ASIDE.append(None)
+    import os
+    import pickle
+    import subprocess
+    from pathlib import Path
+
+    import numba
+    from numba.core import types
+
+    plant = sim.plant
+    x = sim._x
+    # Exactly the types run_ticks passes (sim/tick.py, the PLANT stage).
+    argtypes = (
+        *(numba.typeof(v) for v in (x, x, sim._duty.astype(float), sim._enable.astype(bool),
+                                    plant._last_mech)),
+        types.boolean, types.int64,
+        *(numba.typeof(v) for v in (plant._group, plant._slots, plant._phis, plant._rates,
+                                    plant._consts, plant.event_levels, plant.split_budget,
+                                    sim.bus.kernel_args(), sim._volt, sim._sense_sign)),
+    )  # fmt: skip
+    cache = step_period._cache
+    try:
+        if cache._index_key(argtypes, step_period.targetctx.codegen()) in (
+            cache._cache_file._load_index()
+        ):
+            return  # in the cache: nothing to compile
+        proc = subprocess.Popen(
+            [sys.executable, "-c", _ASIDE_CODE.format(root=str(Path(__file__).parents[1]))],
+            stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            env=dict(os.environ),
+        )  # fmt: skip
+        proc.stdin.write(pickle.dumps(argtypes))
+        proc.stdin.close()
+    except (OSError, AttributeError, pickle.PicklingError):
+        return  # no second process (or another numba): run_ticks compiles the step
+    _ASIDE[0] = proc
+
+
+def _end_aside() -> None:
+    """``run_ticks`` is loaded: stop the second compiling process if it still runs (the tick
+    has its step then; numba writes a cache entry by renaming a finished file, so a stopped
+    writer leaves no half entry)."""
+    if _ASIDE and _ASIDE[0] is not None:
+        proc, _ASIDE[0] = _ASIDE[0], None
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
 
 
 @contextmanager

@@ -97,3 +97,39 @@ def test_the_ticks_kernels_load_from_the_cache_without_numbas_registries():
     second = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env)
     assert second.returncode == 0, second.stderr
     assert second.stdout.strip().splitlines()[-1] == "registries: none", second.stdout
+
+
+_ASIDE = """
+import sys
+from pathlib import Path
+from sim import loop
+from sim.config import load_bench
+from sim.supply import step_period
+sim = loop.Simulation(load_bench(Path({root!r}) / "bench_configs" / "paper_bench.toml"))
+loop._compile_plant_aside(sim)
+proc = loop._ASIDE[0]
+assert proc is not None, "no second process with an empty cache"
+assert proc.wait() == 0, proc.returncode
+loop._ASIDE[0] = None
+sim.step(3)  # compiles run_ticks: the plant's step must come from the second process's cache
+hits, misses = step_period.stats.cache_hits, step_period.stats.cache_misses
+print("hits", sum(hits.values()), "misses", sum(misses.values()))
+"""
+
+
+def test_a_cold_start_compiles_the_plant_step_in_a_second_process(tmp_path):
+    """With an empty numba cache, ``sim.loop._compile_plant_aside`` compiles the plant's step
+    in a second process with exactly the argument types ``run_ticks`` passes: the tick then
+    loads it from the cache instead of compiling it (here the second process is waited for,
+    so the check does not depend on which finishes first). ~20 s: a whole cold compile."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run(
+        [sys.executable, "-c", _ASIDE.format(root=str(ROOT))],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "hits 1 misses 0", out.stdout
