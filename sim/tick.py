@@ -112,6 +112,17 @@ _pace = kernel(uart.pace)
 _servo_stage = kernel(inline="always")(servo_stage.py_func)
 
 
+@kernel(inline="always")
+def _queued(ctx, fi, at, end):
+    """A frame written into the TX buffer at ``txbuf[at:end]``: the buffer's end, the bytes
+    owed to the line, the sequence number and the firmware's TX counters move on."""
+    ctx[CX_TXLEN] = end
+    ctx[CX_PENDING] += end - at
+    fi[FI_SEQ] = (fi[FI_SEQ] + 1) & 0xFF
+    fi[FI_TX_FRAMES] += 1
+    fi[FI_TX_BYTES] += end - at
+
+
 # nogil: the rest of a block of encoder noise is drawn on a thread meanwhile (Encoder.refill).
 @kernel(nogil=True)
 def run_ticks(
@@ -242,11 +253,7 @@ def run_ticks(
                     ctx[CX_STAGE] = CURRENT
                     ctx[CX_PERIOD] = 0
                     return STOP_TRANSMIT
-                ctx[CX_TXLEN] = end
-                ctx[CX_PENDING] += end - at
-                fi[FI_SEQ] = (fi[FI_SEQ] + 1) & 0xFF
-                fi[FI_TX_FRAMES] += 1
-                fi[FI_TX_BYTES] += end - at
+                _queued(ctx, fi, at, end)
             dec = fi[FI_DECIMATION]
             if dec and (fi[FI_TICK] - 1) % dec == 0:
                 free = flags[F_FIFO] - ctx[CX_PENDING]
@@ -266,11 +273,7 @@ def run_ticks(
                         ctx[CX_STAGE] = CURRENT
                         ctx[CX_PERIOD] = 0
                         return STOP_TRANSMIT
-                    ctx[CX_TXLEN] = end
-                    ctx[CX_PENDING] += end - at
-                    fi[FI_SEQ] = (fi[FI_SEQ] + 1) & 0xFF
-                    fi[FI_TX_FRAMES] += 1
-                    fi[FI_TX_BYTES] += end - at
+                    _queued(ctx, fi, at, end)
                 else:
                     fi[FI_TX_DROPPED] += 1
             stage = CURRENT

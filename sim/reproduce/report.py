@@ -362,7 +362,7 @@ def _consistency(inp: ReportInputs) -> list[str]:
             for n, (row, row_pm) in enumerate(zip(base.rows, per_move.rows, strict=True))
             if n > 0
         )
-        a_pm = " / ".join(f"{a:g}" for a in choices_a_max())
+        a_pm = " / ".join(f"{a:g}" for a in per_move.trace.command_a_max_dps2)
         lines += [
             f"**Run with one a_max per move** ({a_pm} deg/s², the only reading with one a_max per "
             "move that fits; the fourth move is free and keeps 148), measured velocity "
@@ -380,12 +380,6 @@ def _consistency(inp: ReportInputs) -> list[str]:
         ]
     return lines
 
-
-def choices_a_max() -> tuple[float, ...]:
-    """The a_max of each move of the per-move run (``sensitivity.TABLE1_A_MAX``)."""
-    from sim.reproduce.sensitivity import TABLE1_A_MAX
-
-    return TABLE1_A_MAX
 
 
 def _faults(metrics: Sequence[RunMetrics]) -> str:

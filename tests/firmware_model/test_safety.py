@@ -643,24 +643,28 @@ def test_with_the_offset_calibrated_the_grid_never_trips_the_back_emf_check(fig)
             assert p < 0.75 / 2
 
 
+# R x1.0 / x1.3 at its reference and k_ILIS 8.5k / 14k, the motor restarted warm (winding
+# +55 K, housing +30 K: the firmware cannot know it) with the heat model on.
+WARM_ROWS = [
+    {"current_sense.k_ilis": k, "motor.r_ohm": R_NOMINAL_OHM * r}
+    for k in (8500.0, 14000.0)
+    for r in (1.0, 1.3)
+]
+WARM = {"thermal.model": True, "thermal.initial_winding_rise_k": 55.0,
+        "thermal.initial_housing_rise_k": 30.0}  # fmt: skip
+
+
 def test_the_calibrated_residual_alone_trips_a_warm_board_beyond_the_r_spread():
     # Why the calibrated allowance stays 62 by default (docs/model.md "Safety"): narrowed to
     # what the calibration leaves (2 counts), the check trips a board at k_ILIS 14k with R
     # x1.3 restarted warm (+55 K: R x1.58, beyond the R spread of +-30 %); the offset's slack
     # was covering it. With the R spread at 0.5 it does not, nor on the datasheet grid.
-    rows = [
-        {"current_sense.k_ilis": k, "motor.r_ohm": R_NOMINAL_OHM * r}
-        for k in (8500.0, 14000.0)
-        for r in (1.0, 1.3)
-    ]
-    warm = {"thermal.model": True, "thermal.initial_winding_rise_k": 55.0,
-            "thermal.initial_housing_rise_k": 30.0}  # fmt: skip
     cal = {"controller.current.sense_calibration": True,
            "safety.sensor_mismatch_calibrated_offset_counts": 2}  # fmt: skip
-    first, _ = _spread_run("fig6", rows, **warm, **cal)
+    first, _ = _spread_run("fig6", WARM_ROWS, **WARM, **cal)
     assert first == [0, 0, 0, Fault.SENSOR_MISMATCH]
     first, peak = _spread_run(
-        "fig6", rows, **warm, **cal, **{"safety.sensor_mismatch_r_spread": 0.5}
+        "fig6", WARM_ROWS, **WARM, **cal, **{"safety.sensor_mismatch_r_spread": 0.5}
     )
     assert first == [0, 0, 0, 0] and np.all(peak < 0.75 / 2)
     first, peak = _spread_run("fig6", SPREAD, **cal, **{"safety.sensor_mismatch_r_spread": 0.5})
@@ -675,16 +679,9 @@ def test_the_calibrated_residual_alone_trips_a_warm_board_beyond_the_r_spread():
 def test_a_warm_motor_with_the_heat_model_never_trips_the_back_emf_check():
     # The heat model on, the motor restarted warm (winding +55 K, housing +30 K: the firmware
     # cannot know it), R x1.0 / x1.3 at its reference and k_ILIS 8.5k / 14k.
-    rows = [
-        {"current_sense.k_ilis": k, "motor.r_ohm": R_NOMINAL_OHM * r}
-        for k in (8500.0, 14000.0)
-        for r in (1.0, 1.3)
-    ]
-    warm = {"thermal.model": True, "thermal.initial_winding_rise_k": 55.0,
-            "thermal.initial_housing_rise_k": 30.0}  # fmt: skip
-    first, peak = _spread_run("fig6", rows, **warm)
+    first, peak = _spread_run("fig6", WARM_ROWS, **WARM)
     assert first == [0, 0, 0, 0] and np.all(peak < 0.75 / 2)
-    before, _ = _spread_run("fig6", rows, **warm, **EXACT_MODEL)
+    before, _ = _spread_run("fig6", WARM_ROWS, **WARM, **EXACT_MODEL)
     assert Fault.SENSOR_MISMATCH in before
 
 
