@@ -203,6 +203,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.fault = (uint8_t)v(t, ok); m.pos = (int32_t)v(t, ok); m.vel = (int32_t)v(t, ok);
         m.target = (int32_t)v(t, ok); m.fault_flags = v(t, ok);
         m.session = (uint16_t)v(t, ok); m.sense_offset = v(t, ok);
+        m.sense_offset_neg = v(t, ok);
         return tt_encode_status(p, &m);
     }
     case TT_BOARD_HEARTBEAT: {

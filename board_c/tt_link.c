@@ -496,6 +496,7 @@ size_t tt_encode_status(uint8_t *out, const tt_status *m)
     put_u32(out, &at, m->fault_flags);
     put_u16(out, &at, m->session);
     put_u32(out, &at, m->sense_offset);
+    put_u32(out, &at, m->sense_offset_neg);
     return at;
 }
 

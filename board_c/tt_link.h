@@ -196,7 +196,8 @@ typedef struct {
     int32_t pos, vel, target;
     uint32_t fault_flags;
     uint16_t session;
-    uint32_t sense_offset; /* appended: f32 bits, A */
+    uint32_t sense_offset;     /* appended: f32 bits, A (the positive half-bridge's IS pin) */
+    uint32_t sense_offset_neg; /* appended: f32 bits, A (the negative half-bridge's IS pin) */
 } tt_status;
 typedef struct {
     uint32_t tick;

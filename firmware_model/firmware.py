@@ -40,7 +40,8 @@ from firmware_model.laws.layout import (
     C_CAL_LEFT,
     C_CAL_SUM_A,
     C_CAL_SUM_B,
-    C_SENSE_OFFSET,
+    C_SENSE_OFFSET_A,
+    C_SENSE_OFFSET_B,
     P_DERATE,
     P_DUTY,
     P_IMEAS,
@@ -671,8 +672,9 @@ class Firmware:
 
     def _calibration_done(self) -> None:
         """The members whose calibration ended this period (``calibration_step`` said so):
-        keep the offset of those that passed (``C_SENSE_OFFSET``), disable the others, and
-        answer the ``SetEnable`` once no member calibrates any more: ACK if one passed, else
+        keep the offsets of those that passed (``C_SENSE_OFFSET_A`` / ``_B``, one per IS pin),
+        disable the others, and answer the ``SetEnable`` once no member calibrates any
+        more: ACK if one passed, else
         NACK ``BUSY`` (the axis turned; limit: the speed bound in deg/s) or ``SENSE_OFFSET``
         (the offset implausible; limit: the ceiling, A)."""
         c = self.law.C
@@ -680,12 +682,13 @@ class Firmware:
         if not done.any():
             return
         cur = self.params.current
-        offset, reason = sense_calibration.judge(
+        offset_a, offset_b, reason = sense_calibration.judge(
             c[C_CAL_SUM_A], c[C_CAL_SUM_B], cur.sense_calibration_samples,
             cur.sense_calibration_pin_counts, cur.sense_offset_max_counts,
         )  # fmt: skip
         good = done & (reason == 0)
-        c[C_SENSE_OFFSET, good] = offset[good]
+        c[C_SENSE_OFFSET_A, good] = offset_a[good]
+        c[C_SENSE_OFFSET_B, good] = offset_b[good]
         bad = done & (reason != 0)
         self._calibrating &= ~done
         if bad.any():
@@ -1014,7 +1017,8 @@ class Firmware:
                 vel_dps=safety.wire_pos(float(self.law.vel_dps[0])),
                 target_deg=safety.wire_pos(self._target_deg if self._moved else self.sp_pos_deg),
                 fault_flags=int(self._flags[0]), session=self.session,
-                sense_offset_a=float(self.law.C[C_SENSE_OFFSET, 0]) * self.law.a_per_adc,
+                sense_offset_a=float(self.law.C[C_SENSE_OFFSET_A, 0]) * self.law.a_per_adc,
+                sense_offset_neg_a=float(self.law.C[C_SENSE_OFFSET_B, 0]) * self.law.a_per_adc,
             )  # fmt: skip
         if isinstance(msg, GetGains):
             kp_name, ki_name = _LOOP_GAINS[Loop(msg.loop)]

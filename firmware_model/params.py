@@ -229,10 +229,12 @@ class CurrentLoopGains(_Checked):
     ``sense_calibration``: measure that offset at every enable instead
     (``firmware_model.sense_calibration``): both high sides on (no voltage across the
     motor, no current at rest) for ``sense_calibration_samples`` current-loop periods, the
-    two IS pins read in turn and averaged; refused (the enable NACKed) if the axis turns
-    faster than ``sense_calibration_max_speed_dps``, the two pins' means differ by more
-    than ``sense_calibration_pin_counts`` (a loop current: the motor turns) or the offset is
-    above ``sense_offset_max_counts`` (implausible: beyond the chip's datasheet maximum).
+    two IS pins read in turn, each pin's mean its own offset (subtracted from the readings
+    taken from that pin: the duty's sign picks it); refused (the enable NACKed) if the axis
+    turns faster than ``sense_calibration_max_speed_dps``, the two pins' means differ by
+    more than ``sense_calibration_pin_counts`` (more than two offsets within the datasheet
+    can: a loop current, the motor turns) or a pin's offset is above
+    ``sense_offset_max_counts`` (implausible: beyond the chip's datasheet maximum).
 
     The bus voltage comes in on a second ADC channel through a divider of
     ``bus_divider_ratio``. ``bus_compensation``: the duty is the voltage over the *measured*
@@ -259,7 +261,7 @@ class CurrentLoopGains(_Checked):
     sense_calibration: bool = _f(False, _boolean)
     sense_calibration_samples: int = _f(16, _irng(2, 1000))
     sense_calibration_max_speed_dps: float = _f(1.0, _rng(0.0, 1e4))
-    sense_calibration_pin_counts: int = _f(8, _irng(0, 4095))
+    sense_calibration_pin_counts: int = _f(248, _irng(0, 4095))
     sense_offset_max_counts: int = _f(248, _irng(0, 4095))
     bus_divider_ratio: float = _f(11.0, _rng(1.0, 1000.0))
     bus_compensation: bool = _f(False, _boolean)

@@ -18,12 +18,14 @@ The sequence, per member, in current-loop periods (``C_CAL_LEFT`` counts it down
    that drives positive current, odd: the other's), into ``C_CAL_SUM_A`` / ``_B``. The
    control law's output is held at zero (no duty, no integration) meanwhile;
 3. the last reading ends it (``C_CAL_LEFT`` 0): ``calibration_step`` returns True and the
-   firmware's Python (``Firmware._calibration_done``) judges the sums. A member whose axis
+   firmware's Python (``Firmware._calibration_done``) judges the sums: each pin's mean is
+   that pin's offset (``C_SENSE_OFFSET_A`` / ``_B``; the two pins are two chips, whose
+   offsets differ), subtracted from the readings taken from it. A member whose axis
    turns faster than ``K_CAL_MAX_VEL`` during it is abandoned at once (``C_CAL_SUM_A`` -1).
 
-Why 16 readings: the mean of n readings of an ADC with ``s`` LSB rms of noise is within
-``s / sqrt(n)`` of the offset; with the STM32F103's 1-2 LSB that is 0.25-0.5 count at 16,
-below the half count the firmware's integer offset rounds to anyway, and 32 ms is short
+Why 16 readings (8 per pin): the mean of n readings of an ADC with ``s`` LSB rms of noise is
+within ``s / sqrt(n)`` of the offset; with the STM32F103's 1-2 LSB that is 0.35-0.7 count at
+8, about the half count the firmware's integer offset rounds to anyway, and 32 ms is short
 against an operator's enable and long against the pin's settling (microseconds). Twice as
 many readings would halve the noise term's variance for another 32 ms; it is a setting.
 """
@@ -89,21 +91,25 @@ def judge(
     samples: int,
     pin_counts: int,
     max_counts: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The outcome of finished calibrations: ``(offset_counts, reason)``, int ``(N,)`` each.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The outcome of finished calibrations: ``(offset_a, offset_b, reason)``, int ``(N,)``
+    each.
 
-    ``offset_counts``: the mean of every reading rounded to a count (half up, integer
-    arithmetic as on the MCU). ``reason``: 0 accepted, ``MOVED`` (abandoned, or the two
-    pins' means differ by more than ``pin_counts``: a loop current flows, the motor
-    turns), ``IMPLAUSIBLE`` (the offset above ``max_counts``)."""
+    ``offset_a`` / ``offset_b``: each pin's mean (``samples / 2`` readings each) rounded to a
+    count (half up, integer arithmetic as on the MCU); 0 for an abandoned member. ``reason``:
+    0 accepted, ``MOVED`` (abandoned, or the two pins' means differ by more than
+    ``pin_counts``: more than two offsets can differ, a loop current flows, the motor turns),
+    ``IMPLAUSIBLE`` (a pin's offset above ``max_counts``)."""
     sum_a = np.asarray(sum_a, dtype=np.int64)
     sum_b = np.asarray(sum_b, dtype=np.int64)
     half = samples // 2
-    offset = (2 * (sum_a + sum_b) + samples) // (2 * samples)
+    offset_a = (2 * sum_a + half) // (2 * half)
+    offset_b = (2 * sum_b + half) // (2 * half)
     # |mean_a - mean_b| > pin_counts, in integers
     moved = (sum_a < 0) | (np.abs(sum_a - sum_b) > pin_counts * half)
-    reason = np.where(moved, MOVED, np.where(offset > max_counts, IMPLAUSIBLE, 0))
-    return np.where(sum_a < 0, 0, offset), reason
+    high = np.maximum(offset_a, offset_b) > max_counts
+    reason = np.where(moved, MOVED, np.where(high, IMPLAUSIBLE, 0))
+    return np.where(sum_a < 0, 0, offset_a), np.where(sum_a < 0, 0, offset_b), reason
 
 
 #: ``judge``'s reasons.

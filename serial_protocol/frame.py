@@ -447,7 +447,16 @@ _ROWS: tuple[_Row, ...] = (
                 "sense_offset_a",
                 "f32",
                 "A",
-                "IS offset subtracted from the current readings (calibrated at enable)",
+                "IS offset subtracted from the current readings (calibrated at enable); "
+                "with two pins, the positive half-bridge's (read while the duty is > 0)",
+                appended=True,
+            ),
+            _f(
+                "sense_offset_neg_a",
+                "f32",
+                "A",
+                "the other IS pin's offset (the negative half-bridge's, read while the duty "
+                "is < 0)",
                 appended=True,
             ),
         ),

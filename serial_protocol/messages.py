@@ -753,9 +753,11 @@ class Status:
     target_deg: float
     fault_flags: int = 0
     session: int = 0
-    # Appended (extension rule): the IS offset the firmware subtracts (A of load current;
-    # calibrated at the last enable with [controller.current] sense_calibration).
+    # Appended (extension rule): the IS offsets the firmware subtracts (A of load current;
+    # calibrated at the last enable with [controller.current] sense_calibration), one per
+    # IS pin: the positive half-bridge's (read while the duty is > 0), then the negative's.
     sense_offset_a: float = 0.0
+    sense_offset_neg_a: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,6 +19,10 @@ back-EMF's current ``-K_e w / R`` around that loop). Each IS pin then mirrors it
 side's forward current plus the offset, ``max(0, +-i) / k_ILIS + I_ISH``; the ADC reads one
 pin per current-loop period, the one the firmware picks (``sense_sign`` +2: the pin of the
 half-bridge that drives positive current, -2: the other's).
+
+The two pins are two chips': each has its own offset (``[current_sense] is_offset_ua`` their
+mean, ``is_offset_mismatch_ua`` their difference); a reading carries the offset of the pin
+it is taken from, the one of the half-bridge whose high side switches (the duty's sign).
 """
 
 from __future__ import annotations
@@ -93,14 +97,16 @@ def switching(x, supply_v, shifts, d_out, sense_sign, volt):
         volt[j] = d * supply_v[j]
 
 
-# read_adc's ``pwm[2]`` columns: the IS offset (A of load current), the sample point, the
-# ripple factor 1 / (L f_pwm) (A per V), the settling time and the pin's RC time constant
-# over the PWM period.
-PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE, PW_TAU = range(5)
+# read_adc's ``pwm[2]`` columns: the IS offset of the pin of the half-bridge driving positive
+# current (A of load current), the sample point, the ripple factor 1 / (L f_pwm) (A per V),
+# the settling time and the pin's RC time constant over the PWM period, the other pin's
+# offset (A).
+PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE, PW_TAU, PW_OFFSET_NEG = range(6)
+N_PW = 6
 
 
 def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n: int) -> Any:
-    """``read_adc``'s per-member table ``(n, 5)`` of the PWM-level sense, or ``(0, 5)``
+    """``read_adc``'s per-member table ``(n, N_PW)`` of the PWM-level sense, or ``(0, N_PW)``
     when the sense is the averaged one (sample point 0.5, no offset, no settling, no RC)."""
     neutral = (
         np.all(np.asarray(sense.sample_point) == 0.5)
@@ -109,9 +115,11 @@ def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n
         and np.all(np.asarray(sense.is_filter_us) == 0)
     )
     if neutral:
-        return np.zeros((0, 5))
-    table = np.empty((n, 5))
-    table[:, PW_OFFSET] = np.asarray(sense.is_offset_ua) * 1e-6 * np.asarray(sense.k_ilis)
+        return np.zeros((0, N_PW))
+    table = np.empty((n, N_PW))
+    mean_ua, half_ua = np.asarray(sense.is_offset_ua), 0.5 * np.asarray(sense.is_offset_mismatch_ua)
+    table[:, PW_OFFSET] = (mean_ua + half_ua) * 1e-6 * np.asarray(sense.k_ilis)
+    table[:, PW_OFFSET_NEG] = (mean_ua - half_ua) * 1e-6 * np.asarray(sense.k_ilis)
     table[:, PW_SAMPLE] = sense.sample_point
     table[:, PW_RIPPLE] = 1.0 / (np.asarray(l_h) * bridge.pwm_hz)
     table[:, PW_SETTLE] = np.asarray(sense.is_settling_us) * 1e-6 * bridge.pwm_hz
@@ -142,11 +150,12 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
     that conducts ``sign(sense_sign) * i`` forward, its high side on all period.
 
     ``pwm = (duty, volt, table)``: the applied duty and mean output voltage ``(N,)`` and
-    ``pwm_sense_table``'s ``(N, 4)`` (empty: the averaged sense). With it, the pin is read at
-    ``sample_point`` of the high side's on-time: the current's PWM ripple, peak to peak
+    ``pwm_sense_table``'s ``(N, N_PW)`` (empty: the averaged sense). With it, the pin is read
+    at ``sample_point`` of the high side's on-time: the current's PWM ripple, peak to peak
     ``|volt| (1 - |duty|) / (L f_pwm)`` (sign-magnitude, R neglected over a period), shifts
     the reading by ``(sample_point - 1/2)`` of it; a sample within the settling time of
-    the turn-on reads nothing; the offset adds while the high side switches; an RC
+    the turn-on reads nothing; the offset of the pin read (``sense_sign``'s: ``PW_OFFSET``
+    positive, ``PW_OFFSET_NEG`` negative) adds while its high side switches; an RC
     low-pass on the pin scales what it reads by ``rc_factor``."""
     noisy = draw.shape[0] > 0
     duty, volt, table = pwm
@@ -160,7 +169,7 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
             v = 0.5 * v  # sense_sign is +-2
             c = 0.0 if 0.0 >= v else v
             if fine:
-                c = c + table[j, PW_OFFSET]
+                c = c + table[j, PW_OFFSET if sense_sign[j] > 0.0 else PW_OFFSET_NEG]
         elif fine and sense_sign[j] != 0.0:
             d = abs(duty[j])
             s = table[j, PW_SAMPLE]
@@ -168,7 +177,8 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
                 c = 0.0
             else:
                 v = v + abs(volt[j]) * (1.0 - d) * table[j, PW_RIPPLE] * (s - 0.5)
-                c = (0.0 if 0.0 >= v else v) + table[j, PW_OFFSET]
+                off = table[j, PW_OFFSET if sense_sign[j] > 0.0 else PW_OFFSET_NEG]
+                c = (0.0 if 0.0 >= v else v) + off
                 tau = table[j, PW_TAU]
                 if tau > 0.0:
                     settle = table[j, PW_SETTLE]

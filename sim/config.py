@@ -317,6 +317,7 @@ SANITY: dict[tuple[str, str], tuple[float, float, str]] = {
     ("current_sense", "is_offset_ua"): (0.0, 1000.0, "an IS pin's offset current"),
     ("current_sense", "is_settling_us"): (0.0, 50.0, "an IS pin's settling time"),
     ("current_sense", "is_filter_us"): (0.0, 1000.0, "an RC low-pass on the IS pin"),
+    ("current_sense", "is_offset_mismatch_ua"): (-2000.0, 2000.0, "two IS pins' offsets apart"),
     ("motor", "r_ohm"): (1e-3, 1e3, "a DC motor's armature resistance"),
     ("motor", "l_h"): (1e-6, 1.0, "a DC motor's armature inductance"),
     ("motor", "kt_nm_a"): (1e-4, 10.0, "a DC motor's torque constant"),

@@ -245,6 +245,11 @@ class CurrentSenseParams:
     the pin's voltage follows the IS current, on during the on-time, with it
     (``sim.bridge.rc_factor``). The defaults (0.5, 0, 0, 0) are the averaged sense of the
     model so far, bit for bit.
+
+    The board has two IS pins, one per half-bridge (two chips): ``is_offset_ua`` is their
+    offsets' mean and ``is_offset_mismatch_ua`` the difference, the pin of the half-bridge
+    that drives positive current minus the other's (pin + at ``is_offset_ua + mismatch / 2``,
+    pin - at ``is_offset_ua - mismatch / 2``; neither below 0). 0: both pins alike.
     """
 
     k_ilis: float = 8500.0
@@ -256,10 +261,20 @@ class CurrentSenseParams:
     is_offset_ua: float = 0.0
     is_settling_us: float = 0.0
     is_filter_us: float = 0.0
+    is_offset_mismatch_ua: float = 0.0
 
     def __post_init__(self) -> None:
         _positive(self, "k_ilis", "r_is_ohm", "adc_vref_v")
         _non_negative(self, "noise_rms_lsb", "is_offset_ua", "is_settling_us", "is_filter_us")
+        _check(
+            self,
+            "is_offset_mismatch_ua",
+            _finite(self.is_offset_mismatch_ua)
+            and bool(
+                np.all(np.abs(self.is_offset_mismatch_ua) <= 2.0 * np.asarray(self.is_offset_ua))
+            ),
+            "must be within +-2 x is_offset_ua (neither pin's offset below 0)",
+        )
         _check(
             self,
             "sample_point",

@@ -372,8 +372,14 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
         return _refused(reply, fields)
     if isinstance(reply, Status):
         fault = "" if reply.fault == Fault.NONE else f", fault {_name(Fault, reply.fault)}"
-        # the IS offset the board subtracts (calibrated at enable), when it has one
-        offset = f", IS offset {reply.sense_offset_a:.3f} A" if reply.sense_offset_a else ""
+        # the IS offsets the board subtracts (calibrated at enable), when it has them: one
+        # per pin, shown once when alike (or from an older board, which sends one)
+        pos_a, neg_a = reply.sense_offset_a, reply.sense_offset_neg_a
+        offset = ""
+        if neg_a not in (0.0, pos_a):
+            offset = f", IS offsets {pos_a:.3f} A (duty > 0) / {neg_a:.3f} A (duty < 0)"
+        elif pos_a:
+            offset = f", IS offset {pos_a:.3f} A"
         return (
             f"{_name(State, reply.state)}{fault}: position {reply.pos_deg:.3f} deg, velocity "
             f"{reply.vel_dps:.1f} deg/s, target {reply.target_deg:.3f} deg{offset} "

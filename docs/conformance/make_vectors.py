@@ -208,7 +208,11 @@ FRAMES: list[tuple[str, Any, int]] = [
         ),  # fmt: skip
         14,
     ),
-    ("status", Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S), 15),
+    (
+        "status",
+        Status(12, 5000, State.HOLDING, Fault.NONE, 3000.0, 0.0, 3000.0, 0, S, 0.4795, 0.2055),
+        15,
+    ),
     (
         "board_heartbeat",
         BoardHeartbeat(

@@ -22,7 +22,8 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
-    C_SENSE_OFFSET,
+    C_SENSE_OFFSET_A,
+    C_SENSE_OFFSET_B,
     C_STEPS,
     C_STUCK,
     G_ACC_FF,
@@ -235,10 +236,11 @@ def current(adc, enabled, P, C, S, G, K):
     inv_supply = np.int64(K[K_INV_SUPPLY_Q])
     arr = np.int64(K[K_ARR])
     for j in range(adc.shape[0]):
-        a = adc[j] - C[C_SENSE_OFFSET, j]  # the IS pin's offset, as calibrated
+        applied = C[C_STEPS, j]
+        # The offset of the pin read: the one of the half-bridge the applied duty drives.
+        a = adc[j] - C[C_SENSE_OFFSET_B if applied < 0 else C_SENSE_OFFSET_A, j]
         if a < 0:
             a = 0
-        applied = C[C_STEPS, j]
         sensed = (a * a_per_adc_q + (1 << 7)) >> (_GB - _SB)
         sign = _sgn(applied)
         i_meas = sensed * sign

@@ -21,7 +21,8 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
-    C_SENSE_OFFSET,
+    C_SENSE_OFFSET_A,
+    C_SENSE_OFFSET_B,
     C_STEPS,
     C_STUCK,
     G_ACC_FF,
@@ -206,10 +207,11 @@ def current(adc, enabled, P, C, S, G, K):
     a_per_adc, sense_floor, u_lim = K[K_A_PER_ADC], K[K_SENSE_FLOOR], K[K_U_LIM]
     supply_v, arr, i_limit_a = K[K_SUPPLY_V], K[K_ARR], K[K_I_LIMIT_A]
     for j in range(adc.shape[0]):
-        a = adc[j] - C[C_SENSE_OFFSET, j]  # the IS pin's offset, as calibrated
+        applied = C[C_STEPS, j]
+        # The offset of the pin read: the one of the half-bridge the applied duty drives.
+        a = adc[j] - C[C_SENSE_OFFSET_B if applied < 0 else C_SENSE_OFFSET_A, j]
         if a < 0:
             a = 0
-        applied = C[C_STEPS, j]
         sign = 1.0 if applied > 0 else (-1.0 if applied < 0 else 0.0)
         i_meas = a * a_per_adc * sign
         ref_d = S[ref_row, j]

@@ -21,7 +21,8 @@ from firmware_model.laws.layout import (
     C_INNOV,
     C_PIPE,
     C_RAW_PREV,
-    C_SENSE_OFFSET,
+    C_SENSE_OFFSET_A,
+    C_SENSE_OFFSET_B,
     C_STUCK,
     G_ACC_FF,
     G_EMF_FF,
@@ -208,7 +209,8 @@ class Law:
         self.C[C_COUNT] = base + (raw - raw[0] + HALF_REV) % REV - HALF_REV
         self.C[C_RAW_PREV] = raw
         self.C[C_BUS_ADC] = self.bus_adc_nominal
-        self.C[C_SENSE_OFFSET] = self.sense_offset_counts  # until a calibration measures it
+        # Both pins' until a calibration measures each.
+        self.C[C_SENSE_OFFSET_A] = self.C[C_SENSE_OFFSET_B] = self.sense_offset_counts
         self.S[:] = 0
         self.P[:] = 0.0
         self.P[P_POS] = self.C[C_COUNT] * AXIS_DEG_PER_COUNT

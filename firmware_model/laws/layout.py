@@ -34,16 +34,17 @@ P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY, P_DERATE, P_R_RISE = r
 N_P = 9
 # C: integers.
 # C_BUS_ADC: the bus-voltage ADC reading of the period (the board writes it, as the IS pin's).
-# C_SENSE_OFFSET: the IS reading's offset (counts) the firmware subtracts, as configured or as
-# calibrated at the last enable; C_CAL_LEFT: the IS-offset calibration's current-loop periods
-# left (0: not calibrating; firmware_model.sense_calibration), C_CAL_SUM_A / _B: its sums of
-# the two IS pins' readings (the positive and the negative half-bridge's; A < 0: abandoned,
-# the axis moved).
+# C_SENSE_OFFSET_A / _B: the IS readings' offsets (counts) the firmware subtracts, one per
+# pin (A: the pin of the half-bridge that drives positive current, read while the duty is
+# positive; B: the other's), as configured or as calibrated at the last enable; C_CAL_LEFT:
+# the IS-offset calibration's current-loop periods left (0: not calibrating;
+# firmware_model.sense_calibration), C_CAL_SUM_A / _B: its sums of the two pins' readings
+# (A < 0: abandoned, the axis moved).
 (
-    C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC, C_SENSE_OFFSET, C_CAL_LEFT,
-    C_CAL_SUM_A, C_CAL_SUM_B,
-) = range(11)  # fmt: skip
-C_PIPE = 11
+    C_COUNT, C_RAW_PREV, C_D, C_INNOV, C_STUCK, C_STEPS, C_BUS_ADC, C_SENSE_OFFSET_A,
+    C_CAL_LEFT, C_CAL_SUM_A, C_CAL_SUM_B, C_SENSE_OFFSET_B,
+) = range(12)  # fmt: skip
+C_PIPE = 12
 # S: the law's arithmetic (float64 or Q16.16).
 S_EP, S_V, S_AD, S_VEL, S_I_V, S_I_I, S_VR, S_IREF, S_IMEAS, S_REF_D_LAST = range(10)
 S_REF_PIPE = 10

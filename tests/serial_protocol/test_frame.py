@@ -307,7 +307,7 @@ def test_which_fields_were_appended_after_version_2_0():
         "Telemetry": ["bus_voltage_v"],
         "BoardHeartbeat": ["queue_free", "stream_free", "stream_state", "stream_underruns",
                            "bus_voltage_v"],
-        "Status": ["sense_offset_a"],
+        "Status": ["sense_offset_a", "sense_offset_neg_a"],
     }  # fmt: skip
     # A command's appended fields are ones whose 0 (an older PC's) keeps the board's value.
     assert [c for c in _EXTENDED if int(c.MSG_TYPE) < 0x80] == [SetLimits]

@@ -11,14 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from firmware_model.laws.layout import C_CAL_LEFT, C_SENSE_OFFSET
+from firmware_model.laws.layout import C_CAL_LEFT, C_SENSE_OFFSET_A, C_SENSE_OFFSET_B
 from firmware_model.sense_calibration import IMPLAUSIBLE, MOVED, judge
 from firmware_model.tick import FS_MM_OFFSET_A
 from serial_protocol import frame
 from serial_protocol.host import BoardClient
 from serial_protocol.messages import Ack, Hello, Move, Nack, NackCode, Profile, SetEnable, State
 from sim import loop
-from sim.bridge import PW_OFFSET, apply_bridge, pwm_sense_table, read_adc
+from sim.bridge import N_PW, PW_OFFSET, PW_OFFSET_NEG, apply_bridge, pwm_sense_table, read_adc
 from sim.config import load_bench
 from sim.loop import Simulation
 from sim.params import CurrentSenseParams
@@ -37,8 +37,8 @@ def _counts(current_a: float) -> int:
     return math.floor(current_a / A_PER_LSB + 0.5)
 
 
-def _sense(bench, offset_ua: float, n: int = 1):
-    sense = CurrentSenseParams(is_offset_ua=offset_ua)
+def _sense(bench, offset_ua: float, n: int = 1, mismatch_ua: float = 0.0):
+    sense = CurrentSenseParams(is_offset_ua=offset_ua, is_offset_mismatch_ua=mismatch_ua)
     return pwm_sense_table(sense, bench.plant.bridge, bench.plant.motor.l_h, n)
 
 
@@ -70,7 +70,7 @@ def test_at_rest_each_pin_reads_exactly_the_offset(offset_ua):
     bench = load_bench(BENCH)
     table = _sense(bench, offset_ua, 2)
     x = np.zeros((2, 5))
-    got = _read(x, np.array([2.0, -2.0]), table if offset_ua else np.zeros((0, 5)))
+    got = _read(x, np.array([2.0, -2.0]), table if offset_ua else np.zeros((0, N_PW)))
     want = _counts(offset_ua * 1e-6 * 8500.0)  # I_ISH as load current: k_ILIS times it
     assert table.shape[0] == 0 or table[0, PW_OFFSET] == pytest.approx(offset_ua * 1e-6 * 8500)
     np.testing.assert_array_equal(got, [want, want])
@@ -115,14 +115,76 @@ def test_turning_the_pins_read_the_back_emf_loop_current():
 
 
 def test_judge():
-    # 16 readings, 8 per pin: the mean rounded half up; the reasons.
-    offset, reason = judge(
-        np.array([8 * 62, 8 * 62, 8 * 62, -1, 8 * 300]),
-        np.array([8 * 62, 8 * 62 + 4, 8 * 62 + 72, 0, 8 * 300]),
+    # 16 readings, 8 per pin: each pin's mean rounded half up; the reasons.
+    offset_a, offset_b, reason = judge(
+        np.array([8 * 62, 8 * 62, 8 * 62, -1, 8 * 300, 8 * 10, 8 * 62]),
+        np.array([8 * 62, 8 * 62 + 4, 8 * 62 + 72, 0, 8 * 300, 8 * 250, 8 * 62 + 3]),
         16, 8, 248,
     )  # fmt: skip
-    np.testing.assert_array_equal(offset, [62, 62, 67, 0, 300])  # (992 + 4) / 16 = 62.25
-    np.testing.assert_array_equal(reason, [0, 0, MOVED, MOVED, IMPLAUSIBLE])
+    # (496 + 4) / 8 = 62.5 rounds up to 63; 499 / 8 = 62.375 to 62
+    np.testing.assert_array_equal(offset_a, [62, 62, 62, 0, 300, 10, 62])
+    np.testing.assert_array_equal(offset_b, [62, 63, 71, 0, 300, 250, 62])
+    np.testing.assert_array_equal(reason, [0, 0, MOVED, MOVED, IMPLAUSIBLE, MOVED, 0])
+    # The default pin bound (248 counts: two offsets within 0-200 uA) accepts pins apart
+    # by anything two datasheet offsets can be; one pin above the ceiling is implausible.
+    _, _, reason = judge(np.array([8 * 10, 8 * 10]), np.array([8 * 250, 8 * 240]), 16, 248, 248)
+    np.testing.assert_array_equal(reason, [IMPLAUSIBLE, 0])
+
+
+@pytest.mark.parametrize("arithmetic", ["float", "fixed"])
+@pytest.mark.parametrize(
+    ("offset_ua", "mismatch_ua"), [(50.0, 40.0), (50.0, -60.0), (120.0, 150.0)]
+)
+def test_each_pin_s_offset_is_calibrated_and_subtracted_from_its_own_readings(
+    arithmetic, offset_ua, mismatch_ua
+):
+    # Two chips, two offsets: pin + (the half-bridge driving positive current) at
+    # offset + mismatch / 2, pin - at offset - mismatch / 2 (load-current amperes: k_ILIS
+    # times I_ISH). Each is recovered within one ADC count's share of its value (the ADC
+    # rounds it to a count, the mean of 8 noiseless readings is that count) ...
+    over = {"current_sense.is_offset_ua": offset_ua,
+            "current_sense.is_offset_mismatch_ua": mismatch_ua, "servo.arithmetic": arithmetic}
+    sim = _sim(**over)
+    sim.step(20)
+    want_a = (offset_ua + mismatch_ua / 2) * 1e-6 * 8500.0
+    want_b = (offset_ua - mismatch_ua / 2) * 1e-6 * 8500.0
+    got_a = sim.fw.law.C[C_SENSE_OFFSET_A, 0] * A_PER_LSB
+    got_b = sim.fw.law.C[C_SENSE_OFFSET_B, 0] * A_PER_LSB
+    assert abs(got_a - want_a) <= A_PER_LSB / 2 and abs(got_b - want_b) <= A_PER_LSB / 2
+    assert sim.fw.law.C[C_SENSE_OFFSET_A, 0] == _counts(want_a)
+    assert sim.fw.law.C[C_SENSE_OFFSET_B, 0] == _counts(want_b)
+    client = BoardClient(SimulatedLink(sim, ticks_per_poll=2), ack_timeout_s=30.0)
+    status = client.status()  # both on the wire (f32)
+    assert status.sense_offset_a == pytest.approx(got_a, rel=1e-6)
+    assert status.sense_offset_neg_a == pytest.approx(got_b, rel=1e-6)
+    # ... and each reading loses its own pin's offset: the measured current of a move
+    # both ways is the plant's (within the sense's count and ripple-free averaging).
+    sim.pc_write(frame.encode(Hello(cmd_id=1, session=2), 0))
+    sim.pc_write(frame.encode(Move(2, 20.0, 200.0, 2000.0, 0.0, Profile.TRAPEZOID, 2), 1))
+    sim.step(400)
+    sim.pc_write(frame.encode(Move(3, -20.0, 200.0, 2000.0, 0.0, Profile.TRAPEZOID, 2), 2))
+    sim.step(400)
+    log = sim.log()
+    assert np.all(log.fault == 0)
+    # Where the pin reads forward current (the duty's direction), the firmware's reading
+    # is the true current to within two counts (the reading lags the plant by a period).
+    fwd = (log.duty * log.current_a > 0) & (np.abs(log.current_a) > 0.3)
+    assert fwd.sum() > 100 and (log.duty[fwd] < 0).sum() > 30
+    err = np.abs(log.current_meas_a[fwd] - log.current_a[fwd])
+    assert np.median(err) < 2 * A_PER_LSB
+
+
+def test_one_offset_for_both_pins_misreads_the_other_direction():
+    # The pre-per-pin firmware (one offset, the mean of both pins) misreads each direction
+    # by half the mismatch: measured with the configured (not calibrated) mean offset.
+    bench = load_bench(BENCH)
+    table = _sense(bench, 50.0, 2, mismatch_ua=40.0)
+    assert table[0, PW_OFFSET] == pytest.approx(70e-6 * 8500.0)
+    assert table[0, PW_OFFSET_NEG] == pytest.approx(30e-6 * 8500.0)
+    got = _read(np.zeros((2, 5)), np.array([2.0, -2.0]), table)
+    np.testing.assert_array_equal(got, [_counts(70e-6 * 8500.0), _counts(30e-6 * 8500.0)])
+    with pytest.raises(ValueError, match="is_offset_mismatch_ua"):
+        CurrentSenseParams(is_offset_ua=10.0, is_offset_mismatch_ua=30.0)
 
 
 def _sim(**overrides):
@@ -142,27 +204,31 @@ def test_power_up_calibration_learns_the_offset(arithmetic, offset_ua):
     assert np.all(log.voltage_v == 0.0) and np.all(log.duty == 0.0)
     sim.step(1)
     assert sim.fw.law.C[C_CAL_LEFT, 0] == 0
-    assert sim.fw.law.C[C_SENSE_OFFSET, 0] == (62 if offset_ua else 0)
+    assert sim.fw.law.C[C_SENSE_OFFSET_A, 0] == (62 if offset_ua else 0)
+    assert sim.fw.law.C[C_SENSE_OFFSET_B, 0] == (62 if offset_ua else 0)
     client = BoardClient(SimulatedLink(sim, ticks_per_poll=2), ack_timeout_s=30.0)
     status = client.status()
-    assert status.sense_offset_a == pytest.approx(sim.fw.law.C[C_SENSE_OFFSET, 0] * A_PER_LSB)
+    assert status.sense_offset_a == pytest.approx(sim.fw.law.C[C_SENSE_OFFSET_A, 0] * A_PER_LSB)
+    assert status.sense_offset_neg_a == status.sense_offset_a
     # the loops hold the axis after it
     sim.step(200)
     assert abs(sim.fw.signals()["pos_deg"]) < 0.05 and sim.fw.fault == 0
 
 
 def test_noisy_adc_calibrates_within_its_averaging():
-    # 2 LSB rms of ADC noise on 200 members (each its own draws): the mean of 16 readings
-    # is within 2 / sqrt(16) = 0.5 LSB rms of the offset (62.06 counts), then rounded.
+    # 2 LSB rms of ADC noise on 200 members (each its own draws): each pin's mean of 8
+    # readings is within 2 / sqrt(8) = 0.71 LSB rms of its offset (62.06 counts), then
+    # rounded (+ 1/12 of a count squared).
     sim = Simulation(
         load_bench(BENCH), batch=200, seed=1,
         overrides={**CAL, "current_sense.is_offset_ua": 50.0, "current_sense.noise_rms_lsb": 2.0},
     )  # fmt: skip
     sim.step(40)
-    offset = sim.fw.law.C[C_SENSE_OFFSET]
-    assert abs(offset.mean() - 62.06) < 0.15
-    assert 0.4 < offset.std() < 0.7
-    assert np.all(np.abs(offset - 62) <= 2)  # the back-EMF check's calibrated allowance
+    for row in (C_SENSE_OFFSET_A, C_SENSE_OFFSET_B):
+        offset = sim.fw.law.C[row]
+        assert abs(offset.mean() - 62.06) < 0.2
+        assert 0.55 < offset.std() < 0.95
+        assert np.all(np.abs(offset - 62) <= 3)
     assert np.all(sim.fw.state == State.IDLE)
 
 
@@ -177,7 +243,7 @@ def test_set_enable_is_answered_when_the_calibration_ends():
     # 17 current-loop periods (the one that switches, then 16 readings) after it arrived
     assert sim.tick - sent >= 17
     assert client.status().state is State.IDLE
-    assert sim.fw.law.C[C_SENSE_OFFSET, 0] == 62
+    assert sim.fw.law.C[C_SENSE_OFFSET_A, 0] == sim.fw.law.C[C_SENSE_OFFSET_B, 0] == 62
     assert sim.fw.counters["commands_applied"] >= 1
 
 
@@ -258,7 +324,7 @@ def test_the_compiled_tick_and_the_python_step_calibrate_alike(batch):
         sim.pc_write(frame.encode(Hello(cmd_id=1, session=2), 0))
         sim.pc_write(frame.encode(Move(2, 20.0, 200.0, 2000.0, 0.0, Profile.TRAPEZOID, 2), 1))
         sim.step(150)
-        logs.append((sim.log(), np.array(sim.fw.law.C[C_SENSE_OFFSET]), sim.pc_read()))
+        logs.append((sim.log(), np.array(sim.fw.law.C[C_SENSE_OFFSET_A]), sim.pc_read()))
     (a, off_a, bytes_a), (b, off_b, bytes_b) = logs
     np.testing.assert_array_equal(off_a, off_b)
     assert bytes_a == bytes_b

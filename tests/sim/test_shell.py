@@ -186,6 +186,8 @@ def test_describe_names_the_field_of_a_v2_nack():
     )
     calibrated = dataclasses.replace(status, sense_offset_a=0.4247)
     assert "target 1.000 deg, IS offset 0.425 A (tick 7)" in describe(calibrated)
+    both = dataclasses.replace(calibrated, sense_offset_neg_a=0.2123)
+    assert "IS offsets 0.425 A (duty > 0) / 0.212 A (duty < 0) (tick 7)" in describe(both)
     refused = Nack(1, SetEnable.MSG_TYPE, NackCode.SENSE_OFFSET, NO_FIELD, 1.7)
     assert "offset" in describe(refused)
 
