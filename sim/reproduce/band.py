@@ -51,11 +51,12 @@ the nominal member give the spread that the noise alone makes (the report's erro
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import statistics
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -73,17 +74,22 @@ __all__ = [
     "BandResult",
     "Member",
     "Motor",
+    "PerMotor",
     "Study",
     "bench_value",
     "composite_design",
     "default_noise_copies",
     "factorial_design",
     "first_fault",
+    "iter_members",
     "member_overrides",
+    "more_copies",
     "one_at_a_time",
+    "per_motor",
     "retune",
     "run_members",
     "spread",
+    "tripped",
 ]
 
 #: The factor levels of R, Kt (= Ke) and J: the issue's +-30 %.
@@ -255,18 +261,26 @@ def member_overrides(
     return ov
 
 
-def run_members(
+#: The most members run as one batch: a full study's 3,900 members of a 10 s run would
+#: hold about 2 GB of logs at once; chunks of this size run as fast per member-tick.
+MAX_BATCH = 512
+
+
+def iter_members(
     exp: Experiment,
     members: Sequence[Member],
     tuned: Mapping[tuple[Motor, str], Mapping[str, float]],
     *,
     seed: int = 0,
-) -> list[RunLog]:
-    """Run every member of ``members`` on ``exp``; the logs in member order.
+    max_batch: int = MAX_BATCH,
+) -> Iterator[tuple[int, RunLog]]:
+    """Run every member of ``members`` on ``exp``; ``(member index, its log)`` batch by
+    batch (a batch's logs are freed once the caller has dropped them).
 
     Members whose switches (boolean settings such as ``[supply] bus_model``, which a batch
     cannot vary per member) agree run as one batch with ``(N,)`` arrays for everything
-    else. Telemetry is off in these runs (nothing reads it; the metrics come from the log).
+    else, in chunks of at most ``max_batch``. Telemetry is off in these runs (nothing reads
+    it; the metrics come from the log).
     """
     bench = exp.bench
     per = [member_overrides(bench, m, tuned) for m in members]
@@ -274,17 +288,37 @@ def run_members(
     for k, ov in enumerate(per):
         switches = tuple(sorted((key, v) for key, v in ov.items() if isinstance(v, bool)))
         groups.setdefault(switches, []).append(k)
-    logs: list[RunLog | None] = [None] * len(members)
-    for switches, idx in groups.items():
+    chunks = [
+        (switches, idx[i : i + max_batch])
+        for switches, idx in groups.items()
+        for i in range(0, len(idx), max_batch)
+    ]
+    for switches, idx in chunks:
         keys = sorted({key for k in idx for key, v in per[k].items() if not isinstance(v, bool)})
         ov: dict[str, Any] = dict(switches)
         for key in keys:
             default = bench_value(bench, key)
             ov[key] = np.array([float(per[k].get(key, default)) for k in idx])
         ov["telemetry.decimation"] = 0
-        result = run(exp, batch=len(idx), seed=seed, overrides=ov)
+        log = run(exp, batch=len(idx), seed=seed, overrides=ov).log
         for j, k in enumerate(idx):
-            logs[k] = result.log.member(j)
+            yield k, log.member(j)
+        del log
+
+
+def run_members(
+    exp: Experiment,
+    members: Sequence[Member],
+    tuned: Mapping[tuple[Motor, str], Mapping[str, float]],
+    *,
+    seed: int = 0,
+    max_batch: int = MAX_BATCH,
+) -> list[RunLog]:
+    """Run every member of ``members`` on ``exp`` (:func:`iter_members`); the logs in
+    member order."""
+    logs: list[RunLog | None] = [None] * len(members)
+    for k, log in iter_members(exp, members, tuned, seed=seed, max_batch=max_batch):
+        logs[k] = log
     return [log for log in logs if log is not None]
 
 
@@ -310,8 +344,9 @@ def spread(values: Sequence[float]) -> tuple[float, float, float, float]:
 class Study:
     """Members of one experiment, their metrics and (if kept) some log columns.
 
-    ``metrics[k]`` is ``metric(log of member k)``; ``columns[name]`` is ``(K, n_ticks)`` for
-    the columns kept, ``t_s`` ``(n_ticks,)``.
+    ``metrics[k]`` is ``metric(log of member k)``; ``columns[name]`` is ``(len(kept),
+    n_ticks)`` for the columns kept, row j of member ``kept[j]`` (:meth:`column`), ``t_s``
+    ``(n_ticks,)``.
     """
 
     name: str
@@ -320,6 +355,15 @@ class Study:
     t_s: np.ndarray
     columns: dict[str, np.ndarray] = field(default_factory=dict)
     wall_s: float = 0.0
+    kept: tuple[int, ...] = ()
+
+    def column(self, name: str, idx: Sequence[int]) -> np.ndarray:
+        """Log column ``name`` of the members ``idx`` (kept ones), ``(len(idx), n_ticks)``."""
+        row = {k: j for j, k in enumerate(self.kept)}
+        missing = [k for k in idx if k not in row]
+        if missing:
+            raise KeyError(f"{name!r} was not kept for members {missing}")
+        return self.columns[name][[row[k] for k in idx]]
 
     def select(self, **match: Any) -> list[int]:
         """Indices of the members whose attributes equal ``match``."""
@@ -328,6 +372,20 @@ class Study:
             for k, m in enumerate(self.members)
             if all(getattr(m, name) == value for name, value in match.items())
         ]
+
+    @functools.cached_property
+    def _copies(self) -> dict[tuple[Motor, str, str | None], list[int]]:
+        # (motor, gains, effect) -> the indices of its noise copies: the tables of a full
+        # study look up thousands of members' copies (a scan each would be quadratic)
+        out: dict[tuple[Motor, str, str | None], list[int]] = {}
+        for k, m in enumerate(self.members):
+            out.setdefault((m.motor, m.gains, m.effect), []).append(k)
+        return out
+
+    def copies_of(self, k: int) -> list[int]:
+        """Member ``k`` and its noise copies (the same motor, gains and effect), in order."""
+        m = self.members[k]
+        return self._copies[(m.motor, m.gains, m.effect)]
 
     def values(self, metric: str, idx: Sequence[int]) -> list[float]:
         return [self.metrics[k][metric] for k in idx]
@@ -341,25 +399,31 @@ def run_study(
     *,
     seed: int = 0,
     keep: Sequence[str] = (),
+    keep_for: Callable[[Member], bool] | None = None,
     tuned: Mapping[tuple[Motor, str], Mapping[str, float]] | None = None,
 ) -> Study:
     """Re-tune what ``members`` need (:func:`retune`, once per motor and kind), run them
-    (:func:`run_members`) and measure each with ``metric``."""
+    (:func:`iter_members`) and measure each with ``metric``; the log columns ``keep`` of
+    the members for which ``keep_for`` holds (all by default) are kept."""
     wall0 = time.perf_counter()
     tuned = dict(tuned or {})
     for m in members:
         if (m.motor, m.gains) not in tuned:
             tuned[(m.motor, m.gains)] = retune(exp.bench, m.motor, m.gains, seed=seed)
-    logs = run_members(exp, members, tuned, seed=seed)
-    cols = {c: np.stack([getattr(log, c) for log in logs]) for c in keep}
-    return Study(
-        name,
-        tuple(members),
-        tuple({**metric(log), **first_fault(log)} for log in logs),
-        logs[0].t_s,
-        cols,
-        time.perf_counter() - wall0,
-    )
+    kept = tuple(k for k, m in enumerate(members) if keep_for is None or keep_for(m))
+    row = {k: j for j, k in enumerate(kept)}
+    metrics: list[dict[str, float]] = [{}] * len(members)
+    cols: dict[str, np.ndarray] = {}
+    t_s = np.zeros(0)
+    for k, log in iter_members(exp, members, tuned, seed=seed):
+        metrics[k] = {**metric(log), **first_fault(log)}
+        t_s = log.t_s
+        if k in row:
+            for c in keep:
+                if c not in cols:
+                    cols[c] = np.empty((len(kept), log.t_s.size))
+                cols[c][row[k]] = getattr(log, c)
+    return Study(name, tuple(members), tuple(metrics), t_s, cols, time.perf_counter() - wall0, kept)
 
 
 @dataclass(frozen=True)
@@ -385,20 +449,18 @@ def fig6_band_members(
     effects_everywhere: bool = False,
 ) -> list[Member]:
     """The members of the Fig. 6 band: every motor of ``design`` with fixed gains, with the
-    firmware model of its motor, and re-tuned by ``retune_how``; ``noise_copies`` noise
-    realisations of the nominal member (fixed and re-tuned); every effect on the nominal
-    motor with fixed gains, or (``effects_everywhere``) on every motor, fixed and re-tuned."""
+    firmware model of its motor, and re-tuned by ``retune_how``; every effect on the nominal
+    motor with fixed gains, or (``effects_everywhere``) on every motor, fixed and re-tuned.
+    Each of them in ``noise_copies`` noise realisations (copies 0 .. n - 1; copy 0 first):
+    every number of the band is a per-motor mean ± sd, as the one-at-a-time variants'."""
     motors = DESIGNS[design]()
     kinds = ("fixed", "model", retune_how)
     members = [Member(m, g) for g in kinds for m in motors]
-    members += [
-        Member(Motor(), g, copy=c) for g in ("fixed", retune_how) for c in range(1, noise_copies)
-    ]
     if effects_everywhere:
         members += [Member(m, g, e) for e in EFFECTS for g in ("fixed", retune_how) for m in motors]
     else:
         members += [Member(Motor(), "fixed", e) for e in EFFECTS]
-    return members + variant_copies(members, noise_copies)
+    return members + more_copies(members, noise_copies)
 
 
 def is_variant(m: Member) -> bool:
@@ -412,13 +474,15 @@ def is_variant(m: Member) -> bool:
     return m.motor.nominal
 
 
-def variant_copies(members: Sequence[Member], noise_copies: int) -> list[Member]:
-    """Noise copies 1 .. ``noise_copies`` - 1 of every one-at-a-time variant among
-    ``members`` (copy 0): each variant is reported as mean ± sd, as the nominal member."""
+def more_copies(
+    members: Sequence[Member], noise_copies: int, which: Callable[[Member], bool] | None = None
+) -> list[Member]:
+    """Noise copies 1 .. ``noise_copies`` - 1 of the members (copy 0) among ``members`` for
+    which ``which`` holds (all by default)."""
     return [
         dataclasses.replace(m, copy=c)
         for m in members
-        if m.copy == 0 and is_variant(m)
+        if m.copy == 0 and (which is None or which(m))
         for c in range(1, noise_copies)
     ]
 
@@ -453,6 +517,7 @@ def fig6_band(
         lambda log: fig6_metrics(log, target, limit),
         seed=seed,
         keep=("pos_deg", "vel_dps"),
+        keep_for=lambda m: m.copy == 0 and m.effect is None,  # what the figure draws
         tuned=tuned,
     )
     return BandResult(study, target, retune_how, design, effects_everywhere)
@@ -468,7 +533,7 @@ _NAMES = {
 
 
 def plot(band: BandResult, path: str | Path | None) -> Any:
-    """The band figure: envelope and median over the 27 motors of the axis velocity and of
+    """The band figure: envelope and median over the motors of the axis velocity and of
     the position past the target, fixed gains against re-tuned gains; members that tripped
     a fault are drawn as thin lines, outside the envelope (returns the figure, saved to
     ``path`` if given)."""
@@ -481,9 +546,9 @@ def plot(band: BandResult, path: str | Path | None) -> Any:
     nominal = st.select(motor=Motor(), gains="fixed", effect=None, copy=0)[0]
     for kind in ("fixed", band.retune):
         idx = st.select(gains=kind, effect=None, copy=0)
-        ok = [k for k in idx if not st.metrics[k]["fault code"]]
-        tripped = [k for k in idx if k not in ok]
-        over = [st.metrics[k]["overshoot (deg)"] for k in ok]
+        ok = [k for k in idx if not tripped(st, k)]
+        bad = [k for k in idx if k not in ok]
+        over = per_motor(st, "overshoot (deg)", ok).means  # as section 8's table
         label = f"{_NAMES[kind]}: {len(ok)} motors, overshoot " + (
             f"{min(over):.0f}–{max(over):.0f}° (median {float(np.median(over)):.0f}°)"
             if over
@@ -492,27 +557,31 @@ def plot(band: BandResult, path: str | Path | None) -> Any:
         colour = _COLOURS[kind]
         for ax, col, shift in ((ax_v, "vel_dps", 0.0), (ax_p, "pos_deg", band.target_deg)):
             if ok:
-                y = st.columns[col][ok] - shift
+                y = st.column(col, ok) - shift
                 ax.fill_between(t, y.min(axis=0), y.max(axis=0), color=colour, alpha=0.2, lw=0)
                 ax.plot(t, np.median(y, axis=0), color=colour, lw=1.6, label=label)
-            for j, k in enumerate(tripped):
+            for j, k in enumerate(bad):
                 ax.plot(
-                    t, st.columns[col][k] - shift, color=colour, lw=0.6, ls=":",
-                    label=f"{len(tripped)} motors that tripped a fault" if j == 0 else None,
+                    t, st.column(col, [k])[0] - shift, color=colour, lw=0.6, ls=":",
+                    label=f"{len(bad)} motors that tripped a fault" if j == 0 else None,
                 )  # fmt: skip
     ax_p.plot(
-        t, st.columns["pos_deg"][nominal] - band.target_deg, color="k", lw=0.8, ls="--",
+        t, st.column("pos_deg", [nominal])[0] - band.target_deg, color="k", lw=0.8, ls="--",
         label="nominal motor, fixed gains (the reproduction's Fig. 6)",
     )  # fmt: skip
-    peak = st.metrics[nominal]["overshoot (deg)"]
+    peak, peak_sd, _, _ = spread(st.values("overshoot (deg)", st.copies_of(nominal)))
     ax_p.axhline(peak, color="k", lw=0.6, ls=":")
     ax_p.text(
-        0.99, peak, f"nominal overshoot {peak:.1f}° (the paper prints no number: \"large\")",
+        0.99, peak, f"nominal overshoot {peak:.1f} ± {peak_sd:.2g}° over "
+        f"{len(st.copies_of(nominal))} noise realisations (the paper prints no number: "
+        "\"large\")",
         transform=ax_p.get_yaxis_transform(), ha="right", va="bottom", fontsize=8,
     )  # fmt: skip
     ax_p.axhline(0.0, color="0.5", lw=0.6)
     notes = [
-        f"{st.members[k].effect}: overshoot {st.metrics[k]['overshoot (deg)']:.0f}°"
+        f"{st.members[k].effect}: overshoot {{:.1f}} ± {{:.2g}}°".format(
+            *_variant(st, "overshoot (deg)", k)
+        )
         for k in st.select(motor=Motor(), gains="fixed", copy=0)
         if "bus" in (st.members[k].effect or "")
     ]
@@ -540,7 +609,9 @@ def plot(band: BandResult, path: str | Path | None) -> Any:
     fig.suptitle(
         f"Fig. 6 (step S = 3e6 m°, no planning) over {len(band.motors)} motors: R, Kt = Ke, J "
         f"{what}\nbands: envelope of the motors that did not trip, thick lines: their median; "
-        "positions in the firmware's frame"
+        "positions in the firmware's frame\ncurves: noise realisation 0 of each motor; "
+        f"numbers: each motor's mean over its {len(st.copies_of(nominal))} noise realisations",
+        fontsize=10.5,
     )
     if path is not None:
         fig.savefig(path, dpi=110)
@@ -557,7 +628,7 @@ def effects_members(*, retune_how: str = "classic", noise_copies: int = 3) -> li
     members = [Member(gains=g, copy=c) for g in ("fixed", retune_how) for c in range(noise_copies)]
     members += [Member(m, g) for m in one_at_a_time() for g in ("fixed", retune_how)]
     members += [Member(effect=e) for e in EFFECTS]
-    return members + variant_copies(members, noise_copies)
+    return members + more_copies(members, noise_copies, is_variant)
 
 
 @dataclass(frozen=True)
@@ -670,16 +741,10 @@ def _base(st: Study, metric: str, gains: str) -> tuple[float, float]:
     return mean, sd
 
 
-def _copies_of(st: Study, k: int) -> list[int]:
-    """Member ``k`` and its noise copies (the same motor, gains and effect)."""
-    m = st.members[k]
-    return st.select(motor=m.motor, gains=m.gains, effect=m.effect)
-
-
 def _variant(st: Study, metric: str, k: int) -> tuple[float, float]:
     """Mean and standard deviation of ``metric`` over member ``k``'s noise copies (NaN
     where none has a value; sd 0 for one)."""
-    mean, sd, _, _ = spread(st.values(metric, _copies_of(st, k)))
+    mean, sd, _, _ = spread(st.values(metric, st.copies_of(k)))
     return mean, sd
 
 
@@ -707,7 +772,7 @@ def _beyond(st: Study, metric: str, k: int) -> tuple[float, float, float, float,
 
 def _fault_copies(st: Study, k: int) -> str:
     """The first fault of member ``k``'s copies (with in how many, if not in all)."""
-    idx = _copies_of(st, k)
+    idx = st.copies_of(k)
     tripped = [j for j in idx if st.metrics[j]["fault code"]]
     if not tripped:
         return "none"
@@ -718,19 +783,12 @@ def _fault_copies(st: Study, k: int) -> str:
 def _oat_rows(st: Study, headline: str) -> list[int]:
     """The one-at-a-time members (one motor factor off nominal, or one effect on the
     nominal motor), largest change of ``headline`` first (trips first of all)."""
-    oat = set(one_at_a_time())
-    rows = [
-        k
-        for k, m in enumerate(st.members)
-        if m.copy == 0
-        and m.gains != "model"
-        and ((m.effect is None and m.motor in oat) or (m.effect and m.motor.nominal))
-    ]
+    rows = [k for k, m in enumerate(st.members) if m.copy == 0 and is_variant(m)]
 
     def size(k: int) -> float:
         mean, _ = _base(st, headline, st.members[k].gains)
         v, _ = _variant(st, headline, k)
-        if st.metrics[k]["fault code"] or math.isnan(v) or math.isnan(mean):
+        if tripped(st, k) or math.isnan(v) or math.isnan(mean):
             return math.inf
         return abs(v - mean) / max(abs(mean), 1e-12)
 
@@ -751,7 +809,7 @@ def _study_table(st: Study, metrics: Sequence[str], rows: Sequence[int]) -> list
                    + " | ".join(cells) + " | none |")  # fmt: skip
     for k in rows:
         mem = st.members[k]
-        n = len(_copies_of(st, k))
+        n = len(st.copies_of(k))
         cells = []
         for m in metrics:
             v, v_sd, mean, _, moves = _beyond(st, m, k)
@@ -791,47 +849,106 @@ def _summary(st: Study, metric: str, rows: Sequence[int], top: int = 5) -> str:
     return text
 
 
+def tripped(st: Study, k: int) -> bool:
+    """Whether any noise realisation of member ``k`` tripped a fault."""
+    return any(st.metrics[j]["fault code"] for j in st.copies_of(k))
+
+
+@dataclass(frozen=True)
+class PerMotor:
+    """A metric of one motor per member over their noise realisations (:func:`per_motor`):
+    ``means`` and ``sds`` (standard deviations) of the motors where it is defined in at
+    least one realisation; ``undefined`` of the ``realisations`` in all had it undefined
+    (NaN: e.g. not settled by the end of the run)."""
+
+    means: list[float]
+    sds: list[float]
+    undefined: int
+    realisations: int
+
+    def over_motors(self) -> str:
+        """``median (min–max)`` of the per-motor means, and the realisations left out."""
+        m = self.means
+        if not m:
+            return "-"
+        text = f"{_cell(float(np.median(m)), 4)} ({_cell(min(m))}–{_cell(max(m))})"
+        if self.undefined:
+            text += f" [undefined in {self.undefined} of {self.realisations} realisations]"
+        return text
+
+    def over_noise(self) -> str:
+        """``median (largest)`` of the per-motor standard deviations over the noise."""
+        if not self.sds:
+            return "-"
+        return f"{_cell(float(np.median(self.sds)), 2)} ({_cell(max(self.sds), 2)})"
+
+
+def per_motor(st: Study, metric: str, idx: Sequence[int]) -> PerMotor:
+    """``metric`` of the members ``idx`` (copy 0 of each; one per motor) over their noise
+    realisations."""
+    means, sds, undefined, n = [], [], 0, 0
+    for k in idx:
+        vals = st.values(metric, st.copies_of(k))
+        n += len(vals)
+        undefined += sum(math.isnan(v) for v in vals)
+        mean, sd, _, _ = spread(vals)
+        if not math.isnan(mean):
+            means.append(mean)
+            sds.append(sd)
+    return PerMotor(means, sds, undefined, n)
+
+
+def _trips(st: Study, idx: Sequence[int]) -> tuple[list[int], str]:
+    """The members of ``idx`` (one per motor) none of whose realisations tripped, and the
+    text ``"1 of 15 (Kt×0.7: OVER_CURRENT at 3.258 s (in 2 of 3))"`` for the others."""
+    ok = [k for k in idx if not tripped(st, k)]
+    bad = [k for k in idx if k not in ok]
+    names = "; ".join(f"{st.members[k].motor.label}: {_fault_copies(st, k)}" for k in bad)
+    return ok, f"{len(bad)} of {len(idx)}" + (f" ({names})" if names else "")
+
+
 def _band_table(b: BandResult, metrics: Sequence[str]) -> list[str]:
+    """Per gains: the motors that tripped, then two rows over the motors that did not:
+    the spread over motors of the per-motor means, and the spread the noise makes (the
+    per-motor standard deviations)."""
     st = b.study
-    head = ["gains", "tripped", *metrics]
+    head = ["gains", "tripped", "spread", *metrics]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for kind in ("fixed", "model", b.retune):
-        idx = st.select(gains=kind, effect=None, copy=0)
-        ok = [k for k in idx if not st.metrics[k]["fault code"]]
-        tripped = [k for k in idx if k not in ok]
-        cells = []
+        ok, trip_txt = _trips(st, st.select(gains=kind, effect=None, copy=0))
+        motors, noise = [], []
         for m in metrics:
-            vals = [v for v in st.values(m, ok) if not math.isnan(v)]
-            cells.append(
-                f"{_cell(float(np.median(vals)), 4)} ({_cell(min(vals))}–{_cell(max(vals))})"
-                if vals
-                else "-"
-            )
-        trip = "; ".join(f"{st.members[k].motor.label}: {_fault(st.metrics[k])}" for k in tripped)
-        trip_txt = f"{len(tripped)} of {len(idx)}" + (f" ({trip})" if trip else "")
-        out.append("| " + " | ".join([kind, trip_txt, *cells]) + " |")
+            pm = per_motor(st, m, ok)
+            motors.append(pm.over_motors())
+            noise.append(pm.over_noise())
+        out.append("| " + " | ".join([kind, trip_txt, "motors", *motors]) + " |")
+        out.append("| " + " | ".join([kind, "", "noise", *noise]) + " |")
     return out + [""]
 
 
 def _effects_everywhere_table(b: BandResult) -> list[str]:
-    """Per effect, the overshoot over every motor (fixed and re-tuned)."""
+    """Per effect, the overshoot over every motor (fixed and re-tuned): per-motor means
+    over the noise realisations, and the noise's per-motor standard deviations."""
     st = b.study
     head = ["effect"] + [
-        f"{g}: tripped, overshoot median (min–max) deg" for g in ("fixed", b.retune)
+        f"{g}: tripped; overshoot (deg) over motors, median (min–max); noise sd, median (largest)"
+        for g in ("fixed", b.retune)
     ]
     out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for effect in (None, *EFFECTS):
         cells = []
         for kind in ("fixed", b.retune):
             idx = st.select(gains=kind, effect=effect, copy=0)
-            ok = [k for k in idx if not st.metrics[k]["fault code"]]
-            vals = st.values("overshoot (deg)", ok)
-            txt = f"{len(idx) - len(ok)} of {len(idx)}{_faults_by_name(st, idx)}, "
-            txt += (
-                f"{_cell(float(np.median(vals)), 4)} ({_cell(min(vals))}–{_cell(max(vals))})"
-                if vals
-                else "-"
-            )
+            ok = [k for k in idx if not tripped(st, k)]
+            # each tripped motor named by its first realisation that tripped
+            bad = [
+                next(j for j in st.copies_of(k) if st.metrics[j]["fault code"])
+                for k in idx
+                if k not in ok
+            ]
+            pm = per_motor(st, "overshoot (deg)", ok)
+            txt = f"{len(idx) - len(ok)} of {len(idx)}{_faults_by_name(st, bad)}; "
+            txt += f"{pm.over_motors()}; noise sd {pm.over_noise()}"
             cells.append(txt)
         out.append("| " + " | ".join([effect or "none (the bench)", *cells]) + " |")
     return out + [""]
@@ -867,11 +984,12 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
         "the config's gains); **model** = the feed-forward model of the member's own motor "
         f"(R, back-EMF, inertia), the config's gains; **{b.retune}** = that model and the "
         f"gains re-tuned for the member's motor by {how}. Each variant is compared with the "
-        "nominal motor under the same gains. Error bars: the nominal member and every "
-        f"variant of the one-at-a-time tables run in {res.noise_copies} noise realisations "
-        "each (every member of a batch draws its own encoder noise): mean ± standard "
-        "deviation (a value without ± is NaN in some realisations, e.g. after a trip; the "
-        "band tables are medians and ranges over motors, copy 0 of each). **Bold**: the "
+        "nominal motor under the same gains. Error bars: every member (each motor of the "
+        f"band, the nominal, every variant) runs in {res.noise_copies} noise realisations "
+        "(every member of a batch draws its own encoder noise). In the one-at-a-time "
+        "tables a cell is the member's mean ± standard deviation over them (a value "
+        "without ± is NaN in some realisations, e.g. after a trip); the band tables keep "
+        "the spread over motors and the spread over noise apart (below). **Bold**: the "
         "variant's mean differs from the nominal's by more than 3 standard deviations (the "
         "two spreads together) and 2 %. "
         + (
@@ -898,18 +1016,27 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
         }[b.design]
         + " Why not a Latin hypercube of the same size: a band is an envelope, and for "
         "responses monotone in each factor the extremes sit at the corners, which these "
-        "designs contain and a hypercube almost never does. Over the motors that did not "
-        "trip: median (min–max).",
+        "designs contain and a hypercube almost never does. Each motor ran in "
+        f"{res.noise_copies} noise realisations; a motor that tripped in any of them is "
+        "counted under *tripped* (with the realisations it tripped in) and left out of the "
+        "two rows of numbers, which are over the others: **motors** = the median (min–max) "
+        "over motors of each motor's mean over its realisations, the spread the motor "
+        "parameters make; **noise** = the median (largest) over the same motors of each "
+        "motor's standard deviation over its realisations, the spread the encoder noise "
+        "makes. A realisation where a number is undefined (e.g. not settled by the end of "
+        "the run) is left out of its motor's mean (a motor where it is undefined in all "
+        "is left out) and counted in the cell.",
         "",
     ]
     lines += _band_table(b, FIG6_METRICS)
     fixed = st.select(gains="fixed", effect=None, copy=0)
     retuned = st.select(gains=b.retune, effect=None, copy=0)
 
-    def over(idx: list[int]) -> str:
-        vals = [st.metrics[k]["overshoot (deg)"] for k in idx if not st.metrics[k]["fault code"]]
-        trips = len(idx) - len(vals)
-        return f"{_cell(min(vals))}–{_cell(max(vals))} deg ({trips} tripped)" if vals else "-"
+    def over(idx: list[int]) -> str:  # the per-motor means' range
+        ok = [k for k in idx if not tripped(st, k)]
+        means = per_motor(st, "overshoot (deg)", ok).means
+        trips = len(idx) - len(ok)
+        return f"{_cell(min(means))}–{_cell(max(means))} deg ({trips} tripped)" if means else "-"
 
     lines += [
         "![Fig. 6 band](fig6_band.png)",
@@ -940,7 +1067,7 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
         lines += [
             "The bus model without a brake chopper **locks the bridge out** (28 V) during "
             "the braking: the step overshoots by "
-            f"{_pm(*_variant(st, 'overshoot (deg)', bus[0]), len(_copies_of(st, bus[0])))} "
+            f"{_pm(*_variant(st, 'overshoot (deg)', bus[0]), len(st.copies_of(bus[0])))} "
             "deg. That is the bus model's verdict on a bench without a brake resistor, not "
             'a numerical artefact; the paper shows no brake. docs/model.md ("Supply and '
             "bus\") has the runs with a chopper and with the firmware's regenerative limit.",

@@ -882,9 +882,10 @@ def _error_bars(inp: ReportInputs) -> list[str]:
         "printed as the mean ± the standard deviation over the realisations; ± 0 means "
         "measured with no spread (e.g. a time on the 2 ms tick grid). A number without ± is "
         f"exact by construction, and its column or sentence says which kind: {exact}, the "
-        "tick a command was applied in, or a count. Section 8 runs its nominal member and "
-        "every variant of its one-at-a-time tables in as many realisations (mean ± sd "
-        "there too); its band tables are medians and ranges over motors, not noise.",
+        "tick a command was applied in, or a count. Section 8 runs every member of its "
+        "studies in as many realisations: mean ± sd in its one-at-a-time tables; its band "
+        "tables give the spread over motors of the per-motor means and, apart from it, the "
+        "spread the noise makes (the per-motor standard deviations).",
         "",
     ]
 

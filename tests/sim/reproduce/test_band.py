@@ -195,19 +195,89 @@ def test_the_de_retune_is_the_tuners_and_passes_its_gate():
 
 
 def test_the_full_study_members():
-    full = band.fig6_band_members(design="factorial", noise_copies=5, effects_everywhere=True)
     n_eff = len(band.EFFECTS)
-    # + 4 more noise copies of each one-at-a-time variant: 6 motors and the effects on the
-    # nominal motor, fixed and re-tuned
-    assert len(full) == 27 * 3 + 4 * 2 + 27 * 2 * n_eff + 4 * (6 + n_eff) * 2
+    full = band.fig6_band_members(design="factorial", noise_copies=5, effects_everywhere=True)
+    # every motor with three kinds of gains, every effect on every motor fixed and re-tuned:
+    # each member in 5 noise realisations
+    assert len(full) == 5 * (27 * 3 + 27 * 2 * n_eff)
     assert len(set(full)) == len(full)
     cheap = band.fig6_band_members()
-    assert len(cheap) == 15 * 3 + 2 * 2 + n_eff + 2 * (6 * 2 + n_eff)
+    assert len(cheap) == 3 * (15 * 3 + n_eff)
     assert {m.motor for m in cheap if m.effect} == {band.Motor()}
+    for members, n in ((full, 5), (cheap, 3)):
+        copies: dict = {}
+        for m in members:
+            copies.setdefault((m.motor, m.gains, m.effect), []).append(m.copy)
+        assert all(c == list(range(n)) for c in copies.values())
     # every variant of the one-at-a-time tables in 3 noise realisations, as the nominal
     variants = [m for m in cheap if band.is_variant(m)]
     assert len(variants) == 3 * (6 * 2 + n_eff)
     assert {m.copy for m in variants} == {0, 1, 2}
+    # Fig. 7 / 8's studies: the nominal and the variants only
+    eff = band.effects_members(noise_copies=3)
+    assert len(eff) == 3 * (2 + 6 * 2 + n_eff) == len(set(eff))
+
+
+def _synthetic_band(rows: dict, effect=None, retune="classic"):
+    """A BandResult whose members are ``rows``' motors (with ``retune`` gains: fixed, model
+    and re-tuned), copies 0..n-1, and whose metrics are the values given: ``rows[(motor,
+    gains)] = [(overshoot, fault code), ...]`` per copy."""
+    members, metrics = [], []
+    for (motor, gains), copies in rows.items():
+        for c, (value, code) in enumerate(copies):
+            members.append(band.Member(motor, gains, effect, copy=c))
+            metrics.append({"overshoot (deg)": value, "fault code": float(code),
+                            "fault at (s)": 3.25 if code else float("nan")})  # fmt: skip
+    st = band.Study("synthetic", tuple(members), tuple(metrics), np.zeros(1))
+    return band.BandResult(st, 3000.0, retune, "composite", effect is not None)
+
+
+def test_the_band_table_separates_the_spread_over_motors_from_the_noise():
+    """Section 8's band table: per gains, the motors that tripped in any realisation, then
+    the median (min–max) of the per-motor means and the median (largest) of the per-motor
+    standard deviations (recomputed here by hand)."""
+    from serial_protocol.messages import Fault
+
+    oc = int(Fault.OVER_CURRENT)
+    a, b, c, d = (band.Motor(r=0.7), band.Motor(kt=1.3), band.Motor(j=0.7), band.Motor())
+    rows = {
+        (a, "fixed"): [(10.0, 0), (12.0, 0), (14.0, 0)],  # mean 12, sd 2
+        (b, "fixed"): [(100.0, 0), (101.0, 0), (102.0, 0)],  # mean 101, sd 1
+        (c, "fixed"): [(1.0, 0), (1.0, 0), (1.0, 0)],  # mean 1, sd 0
+        (d, "fixed"): [(50.0, 0), (0.0, oc), (50.0, 0)],  # tripped in 1 of 3: left out
+        (a, "model"): [(5.0, 0), (float("nan"), 0), (7.0, 0)],  # mean 6, sd 1.414
+        (b, "model"): [(8.0, 0), (8.0, 0), (8.0, 0)],
+        (a, "classic"): [(3.0, 0), (3.0, 0), (3.0, 0)],
+    }
+    lines = band._band_table(_synthetic_band(rows), ["overshoot (deg)"])
+    table = [[c.strip() for c in ln.strip("|").split("|")] for ln in lines if ln]
+    assert table[0] == ["gains", "tripped", "spread", "overshoot (deg)"]
+    got = {(r[0], r[2]): (r[1], r[3]) for r in table[2:]}
+    assert got[("fixed", "motors")] == (
+        "1 of 4 (nominal motor: OVER_CURRENT at 3.250 s (in 1 of 3))",
+        "12 (1–101)",
+    )
+    assert got[("fixed", "noise")] == ("", "1 (2)")
+    assert got[("model", "motors")] == (
+        "0 of 2",
+        "7 (6–8) [undefined in 1 of 6 realisations]",
+    )
+    assert got[("model", "noise")][1] == "0.71 (1.4)"
+    assert got[("classic", "motors")][1] == "3 (3–3)" and got[("classic", "noise")][1] == "0 (0)"
+    # the effects table (full study): the same numbers per effect
+    eff = "gearbox drag off"
+    rows_e = {k: v for k, v in rows.items() if k[1] != "model"}
+    b_none = _synthetic_band(rows_e)
+    b_eff = _synthetic_band(rows_e, effect=eff)
+    st = band.Study(
+        "both", b_none.study.members + b_eff.study.members,
+        b_none.study.metrics + b_eff.study.metrics, np.zeros(1),
+    )  # fmt: skip
+    lines = band._effects_everywhere_table(dataclasses.replace(b_eff, study=st))
+    cells = {ln.split(" | ")[0].strip("| "): ln.split(" | ")[1:] for ln in lines[2:] if ln}
+    for name in ("none (the bench)", eff):
+        assert cells[name][0] == "1 of 4 (OVER_CURRENT 1); 12 (1–101); noise sd 1 (2)"
+        assert cells[name][1].rstrip(" |") == "0 of 1; 3 (3–3); noise sd 0 (0)"
 
 
 def test_the_effects_table_names_the_faults_the_motors_tripped_with():

@@ -314,10 +314,68 @@ def test_report_states_which_effects_matter_per_figure(output):
         assert f"| {m:.4g} ± {s:.2g} |" in section
     # Re-tuning narrows the band: no re-tuned motor trips, and the widest overshoot of the
     # re-tuned motors is below the widest of the fixed ones.
-    fixed = st.select(gains="fixed", effect=None, copy=0)
-    retuned = st.select(gains="classic", effect=None, copy=0)
+    fixed = st.select(gains="fixed", effect=None)
+    retuned = st.select(gains="classic", effect=None)
     assert not any(st.metrics[k]["fault code"] for k in retuned)
     assert max(st.values("overshoot (deg)", retuned)) < max(st.values("overshoot (deg)", fixed))
+
+
+def test_section_8_band_table_is_per_motor_means_and_their_noise(output):
+    """Section 8's band table, parsed: per gains, the median (min–max) over motors of each
+    motor's mean over its noise realisations, and the median (largest) of each motor's
+    standard deviation, recomputed here from the members' copies (every motor ran in the
+    report's number of realisations)."""
+    import statistics
+
+    sens = output.inputs.sensitivity
+    st = sens.band.study
+    text = (output.out_dir / "REPORT.md").read_text(encoding="utf-8")
+    section = _sections(text)["8"]
+    table = next(t for t in _tables(section) if t[0][:3] == ["gains", "tripped", "spread"])
+    metrics = table[0][3:]
+    assert metrics == list(band.FIG6_METRICS)
+    rows = [r for r in table[1:] if not r[0].startswith("---")]  # the header's rule
+    number = r"(-?[\d.]+(?:e[-+]\d+)?)"
+    checked = 0
+    for row in rows:
+        gains, kind = row[0], row[2]
+        motors = {m.motor for m in st.members if m.gains == gains and m.effect is None}
+        assert len(motors) == len(sens.band.motors)
+        per = {}  # motor -> its realisations' metrics
+        for motor in motors:
+            idx = st.select(motor=motor, gains=gains, effect=None)
+            assert sorted(st.members[k].copy for k in idx) == list(range(sens.noise_copies))
+            per[motor] = [st.metrics[k] for k in idx]
+        ok = [m for m in motors if not any(r["fault code"] for r in per[m])]
+        if kind == "motors":
+            assert row[1].startswith(f"{len(motors) - len(ok)} of {len(motors)}")
+        for name, cell in zip(metrics, row[3:], strict=True):
+            vals = {m: [r[name] for r in per[m] if not np.isnan(r[name])] for m in ok}
+            vals = {m: v for m, v in vals.items() if v}
+            if kind == "motors":
+                means = [statistics.fmean(v) for v in vals.values()]
+                med, lo, hi = (float(x) for x in re.match(rf"{number} \({number}–{number}\)",
+                                                           cell).groups())  # fmt: skip
+                assert med == pytest.approx(float(np.median(means)), rel=6e-4, abs=1e-9)
+                assert lo == pytest.approx(min(means), rel=6e-3)
+                assert hi == pytest.approx(max(means), rel=6e-3)
+                undefined = sum(len(per[m]) - len(vals.get(m, [])) for m in ok)
+                assert (f"[undefined in {undefined} of" in cell) == (undefined > 0)
+            else:
+                sds = [statistics.stdev(v) if len(v) > 1 else 0.0 for v in vals.values()]
+                med, hi = (float(x) for x in re.fullmatch(rf"{number} \({number}\)",
+                                                          cell).groups())  # fmt: skip
+                assert med == pytest.approx(float(np.median(sds)), rel=6e-2, abs=1e-12)
+                assert hi == pytest.approx(max(sds), rel=6e-2, abs=1e-12)
+            checked += 1
+    assert checked == 2 * 3 * len(metrics)
+    # the noise row is not vacuous: the overshoot's spread over the noise is not zero, and
+    # far below its spread over the motors
+    over = [r for r in rows if r[0] == "fixed"]
+    k = metrics.index("overshoot (deg)") + 3
+    noise_max = float(over[1][k].split("(")[1].rstrip(")"))
+    motor_lo, motor_hi = (float(x) for x in over[0][k].split("(")[1].split(")")[0].split("–"))
+    assert 0.0 < noise_max < 0.01 * (motor_hi - motor_lo)
 
 
 def test_every_run_is_a_batch_of_noise_realisations_and_copy_0_is_the_decoded_run(output):
