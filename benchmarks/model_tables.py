@@ -200,8 +200,9 @@ def table_switching(runs: Runs) -> list[str]:
     """docs/model.md section 2, "Bridge switching": the typical shifts against the ideal
     bridge (Fig. 6's step and its holding at rest 5-10 s, Fig. 8's 20 s)."""
     out = [
-        "| bridge | Fig. 6 overshoot | holding 5–10 s: median \\|duty\\| | ticks without a pulse "
-        "| max \\|i\\| | max \\|position − 3000\\| | Fig. 8 max following error | Fig. 8 max \\|i\\| |",
+        "| bridge | Fig. 6 overshoot | holding 5–10 s: median \\|duty\\| "
+        "| ticks without a pulse | max \\|i\\| | max \\|position − 3000\\| "
+        "| Fig. 8 max following error | Fig. 8 max \\|i\\| |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, over in (("ideal (default)", {}), ("typical shifts (−0.7 / +2.7 µs)", SWITCHING)):
@@ -268,9 +269,7 @@ def table_regen(runs: Runs) -> list[str]:
         f6 = runs.fig6(over)
         against = np.sign(f6.current_a) * np.sign(f6.duty) < 0
         regen = float(np.abs(f6.current_a[against]).max()) if against.any() else 0.0
-        out.append(
-            f"| {name} | {peak_current(f6):.2f} A | {regen:.2f} A | {_os_cell(f6, 1)} |"
-        )
+        out.append(f"| {name} | {peak_current(f6):.2f} A | {regen:.2f} A | {_os_cell(f6, 1)} |")
     return out
 
 
@@ -283,7 +282,11 @@ def table_ff(runs: Runs) -> list[str]:
         ("Fig. 6, plant heat model from 25 °C", HEAT),
         (
             "Fig. 6, warm motor (winding +55 K, housing +30 K)",
-            {**HEAT, "thermal.initial_winding_rise_k": 55.0, "thermal.initial_housing_rise_k": 30.0},
+            {
+                **HEAT,
+                "thermal.initial_winding_rise_k": 55.0,
+                "thermal.initial_housing_rise_k": 30.0,
+            },
         ),
     )
     on = {"safety.thermal_ff_resistance": True}

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from serial_protocol import frame
+from serial_protocol import frame, messages
 from serial_protocol.uart import bytes_per_s, link_utilisation, telemetry_decimation
 
 DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
@@ -111,3 +111,93 @@ def test_can_section_matches_the_codec():
             assert cls.__name__ in one_frame, f"section 10: {cls.__name__} is one CAN frame"
         else:
             assert stated.get(cls.__name__) == n, f"section 10: `{cls.__name__}` {n} frames"
+
+
+# --- docs/architecture.md's message tables and enumerations ------------------------------
+
+ARCH = (Path(__file__).resolve().parents[2] / "docs" / "architecture.md").read_text()
+ENUMS = (
+    messages.NackCode,
+    messages.State,
+    messages.Fault,
+    messages.FaultFlag,
+    messages.Profile,
+    messages.Loop,
+    messages.QueueAction,
+    messages.QueueState,
+    messages.StreamAction,
+    messages.StreamState,
+    messages.Interp,
+)
+
+
+def _arch_rows() -> dict[str, tuple[int, list[str], str]]:
+    """``{name: (type code, fields, direction)}`` of architecture.md's two message tables."""
+    section = ARCH.split("## Messages", 1)[1]
+    rows: dict[str, tuple[int, list[str], str]] = {}
+    direction = ""
+    for line in section.splitlines():
+        head = re.match(r"^\| type \| (PC → board|board → PC) \|", line)
+        if head:
+            direction = head.group(1)
+            continue
+        row = re.match(r"^\| 0x([0-9A-F]{2}) \| `(\w+)` \| `([^`]*)` \|", line)
+        if row:
+            assert row.group(2) not in rows, f"architecture.md lists {row.group(2)} twice"
+            fields = [f.strip() for f in row.group(3).split(",")]
+            rows[row.group(2)] = (int(row.group(1), 16), fields, direction)
+    return rows
+
+
+def test_architecture_message_tables_match_the_codec():
+    """Every message of the codec is in docs/architecture.md's tables, in the right one,
+    with its type code and its fields in wire order; nothing else is (the tables went stale
+    once: Status, SetLimits and the NACK codes of protocol v2 were missing)."""
+    rows = _arch_rows()
+    codecs = {cls.__name__: (cls, codec) for cls, codec in frame._BY_CLASS.items()}
+    assert sorted(rows) == sorted(codecs)
+    for name, (code, fields, direction) in rows.items():
+        cls, codec = codecs[name]
+        assert code == codec.msg_type, f"{name}: type 0x{codec.msg_type:02X}"
+        assert direction == ("PC → board" if codec.msg_type < 0x80 else "board → PC"), name
+        assert fields == [f.name for f in frame.wire_fields(cls)], f"{name}: fields"
+
+
+@pytest.mark.parametrize("enum", ENUMS, ids=lambda e: e.__name__)
+def test_architecture_enumerations_match_the_code(enum):
+    line = re.search(rf"^- `{enum.__name__}`: `([^`]*)`$", ARCH, re.M)
+    assert line, f"docs/architecture.md lists no `{enum.__name__}`"
+    assert line.group(1) == ", ".join(f"{m.name} ({int(m)})" for m in enum)
+
+
+def test_protocol_enumeration_tables_match_the_code():
+    """docs/protocol.md 4.2: the NackCode and Fault tables (code, name, flag bit) and the
+    small enumeration tables hold every member of the code's enumerations, and no other."""
+    nack_part = DOC[DOC.index("`NackCode` (u8):") : DOC.index("**The travel tolerance.**")]
+    nacks = re.findall(r"^\| (\d+) \| ([A-Z_]+) \|", nack_part, re.M)
+    assert [(int(c), n) for c, n in nacks] == [(int(m), m.name) for m in messages.NackCode]
+    fault_part = DOC[DOC.index("`Fault` (u8):") : DOC.index("`fault_flags` (u32)")]
+    faults = re.findall(
+        r"^\| (\d+) \| ([A-Z_]+) \| (—|(\d+) \(0x([0-9A-F]{8})\)) \|", fault_part, re.M
+    )
+    assert sorted((int(c), n) for c, n, *_ in faults) == [(int(m), m.name) for m in messages.Fault]
+    for _code, name, _, bit, mask in faults:
+        if name == "NONE":
+            continue
+        flag = messages.FaultFlag[name]
+        assert int(bit) == int(flag).bit_length() - 1 and int(mask, 16) == int(flag), name
+    # The side-by-side tables: each enumeration's column pairs (code, name).
+    small = [e for e in ENUMS if e not in (messages.NackCode, messages.Fault, messages.FaultFlag)]
+    for enum in small:
+        table = re.search(
+            rf"^\|[^\n]*`{enum.__name__}` \(u8\)[^\n]*\n\|[-|]+\|\n((?:\|.*\n)+)", DOC, re.M
+        )
+        assert table, f"docs/protocol.md has no `{enum.__name__}` (u8) table"
+        header = [c.strip() for c in table.group(0).splitlines()[0].strip("|").split("|")]
+        col = header.index(f"`{enum.__name__}` (u8)")
+        found = []
+        for line in table.group(1).splitlines():
+            cells = [c.strip() for c in line.strip().strip("|").split("|")]
+            if cells[col]:
+                found.append((int(cells[col]), cells[col + 1].split(" ")[0]))
+        assert found == [(int(m), m.name) for m in enum], enum.__name__
