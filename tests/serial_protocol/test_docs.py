@@ -201,3 +201,34 @@ def test_protocol_enumeration_tables_match_the_code():
             if cells[col]:
                 found.append((int(cells[col]), cells[col + 1].split(" ")[0]))
         assert found == [(int(m), m.name) for m in enum], enum.__name__
+
+
+def _names(text: str) -> list[str]:
+    return re.findall(r"`(\w+)`", text)
+
+
+def test_protocol_lists_of_messages_match_the_code():
+    """The lists in docs/protocol.md's prose that name messages by a property of the code:
+    the mutating commands of the duplicate rule (5.3), the messages with appended fields
+    (section 6 and section 11's rows), the type ranges (section 13)."""
+    from firmware_model.firmware import _MUTATING
+
+    mutating = re.search(r"a mutating command \((.*?)\)\s+whose type", DOC, re.S)
+    assert mutating and sorted(_names(mutating.group(1))) == sorted(c.__name__ for c in _MUTATING)
+    extended = [cls for cls, c in frame._BY_CLASS.items() if c.min_size < c.payload.size]
+    answers = sorted(c.__name__ for c in extended if frame._BY_CLASS[c].msg_type >= 0x80)
+    commands = sorted(c.__name__ for c in extended if frame._BY_CLASS[c].msg_type < 0x80)
+    section6 = re.search(r"appended fields in board → PC messages \((.*?)\) and in one command,"
+                         r"\s+`(\w+)`", DOC, re.S)  # fmt: skip
+    assert section6
+    assert sorted(_names(section6.group(1))) == answers and [section6.group(2)] == commands
+    row = re.search(r"^\| \(PC side\) a (.*?) that ends after", DOC, re.M)
+    assert row and sorted(_names(row.group(1))) == answers
+    for name in commands:
+        assert re.search(rf"^\| a `{name}` that ends after its version 2.0 fields", DOC, re.M)
+    types = [c.msg_type for c in frame._BY_CLASS.values()]
+    ranges = (
+        f"0x{min(t for t in types if t < 0x80):02X}..0x{max(t for t in types if t < 0x80):02X}, "
+        f"0x{min(t for t in types if t >= 0x80):02X}..0x{max(t for t in types if t >= 0x80):02X}"
+    )
+    assert f"| message numbering | 0x01..0x0B, 0x81..0x88 | {ranges} (section 4) |" in DOC
