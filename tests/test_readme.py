@@ -1,5 +1,6 @@
 """Every Python snippet in the README runs as written (issue #15 §5), each in a fresh
-interpreter from the repository's root, as a reader would paste it.
+interpreter from the repository's root, as a reader would paste it; every shell command it
+quotes is accepted by the command line as written and names files that exist (below).
 
 A snippet that talks to a board uses the port the README has ``serve`` make for it
 (``turntable-sim serve --pty --link /tmp/turntable``): the test starts that server first. The
@@ -13,6 +14,7 @@ import contextlib
 import fcntl
 import os
 import re
+import shlex
 import subprocess
 import sys
 import time
@@ -87,3 +89,63 @@ def test_readme_snippet_runs_as_written(line, code):
         )
     assert done.returncode == 0, f"README.md line {line}:\n{code}\n{done.stderr}"
     assert "Traceback" not in done.stderr
+
+
+def shell_commands() -> list[tuple[int, list[str]]]:
+    """(line number, argv) of every command of the README's ```sh blocks and of the
+    subcommand table's examples: continuation lines joined, comments dropped, ``&&`` and
+    ``|`` split into their commands."""
+    text = README.read_text(encoding="utf-8")
+    blocks = [
+        (text.count("\n", 0, m.start()) + 2, m.group(1))
+        for m in re.finditer(r"^```sh\n(.*?)^```", text, re.M | re.S)
+    ]
+    blocks += [
+        (text.count("\n", 0, m.start()) + 1, m.group(1).replace("\\|", "|"))
+        for m in re.finditer(r"^\| `\w+` \| .* \| `(turntable-sim [^`]*)` \|$", text, re.M)
+    ]
+    out = []
+    for first, block in blocks:
+        lines = block.replace("\\\n", " ").splitlines()
+        for k, line in enumerate(lines):
+            words = shlex.split(line, comments=True)
+            command: list[str] = []
+            for word in [*words, "&&"]:
+                if word in ("&&", "|"):
+                    if command:
+                        out.append((first + k, command))
+                    command = []
+                else:
+                    command.append(word)
+    return out
+
+
+COMMANDS = shell_commands()
+
+
+def test_the_readme_quotes_shell_commands():
+    assert sum(argv[0] == "turntable-sim" for _, argv in COMMANDS) >= 30
+
+
+@pytest.mark.parametrize(("line", "argv"), COMMANDS, ids=[f"line{n}" for n, _ in COMMANDS])
+def test_readme_command_is_accepted(line, argv, capsys):
+    """Every ``turntable-sim`` command the README quotes is accepted by the command line
+    parser as written (every option exists and takes the values given), and every file of
+    the repository it names exists. The commands are not run: most need a board on a
+    device the README makes up (/dev/pts/3), or minutes; tests/test_cli.py runs each
+    subcommand. ``python3 SCRIPT`` names a script of the repository that exists."""
+    from sim.cli import build_parser
+
+    if argv[0] == "python3":
+        if argv[1] == "-m":
+            return  # pip and pytest
+        assert (ROOT / argv[1]).is_file(), f"README.md line {line}: no {argv[1]}"
+        return
+    assert argv[0] == "turntable-sim", f"README.md line {line}: {argv}"
+    for word in argv[1:]:
+        if word.startswith(("bench_configs/", "docs/")):
+            assert (ROOT / word).exists(), f"README.md line {line}: no {word}"
+    try:
+        build_parser().parse_args(argv[1:])
+    except SystemExit as exc:
+        assert exc.code == 0, f"README.md line {line}: {argv}\n{capsys.readouterr().err}"
