@@ -10,6 +10,7 @@ docs/model.md quotes it; each table of the page names the table of this script t
     python3 benchmarks/model_tables.py                  # every table (~2 min on a quiet machine)
     python3 benchmarks/model_tables.py effects switching   # some of them
     python3 benchmarks/model_tables.py --list           # the tables and where they go
+    python3 benchmarks/model_tables.py --check          # does docs/model.md hold them?
     python3 benchmarks/model_tables.py --set safety.thermal_ff_resistance=false
                                                         # every row with one more override
                                                         # (here: the nominal-R feed-forward)
@@ -323,17 +324,42 @@ TABLES: dict[str, tuple[Callable[[Runs], list[str]], str]] = {
     "effects": (table_effects, "section 6, first table (drag, INL, stiction)"),
     "effects13": (table_effects13, "section 6, second table (bus, sense, switching, heat)"),
     "switching": (table_switching, 'section 2, "Bridge switching", measured'),
-    "gains": (table_gains, '"Default gains", the closed-loop check'),
+    "gains": (table_gains, '"Default gains", the closed-loop check (quoted in its prose)'),
     "regen": (table_regen, '"The current loop", the regenerative clamp'),
-    "fixed": (table_fixed, '"Fixed point", float against fixed on Fig. 8'),
-    "ff": (table_ff, '"The feed-forward R follows the estimate" (off and on)'),
+    "fixed": (table_fixed, '"Fixed point", float against fixed on Fig. 8 (quoted in its prose)'),
+    "ff": (table_ff, '"The feed-forward R follows the estimate" (off and on; its first rows)'),
 }
+# The tables docs/model.md holds exactly as printed (``--check`` compares them line by line).
+VERBATIM = ("effects", "effects13", "switching", "regen")
+MODEL_MD = Path(__file__).resolve().parents[1] / "docs" / "model.md"
+
+
+def check(runs: Runs, names: list[str]) -> int:
+    """Print every row of the ``VERBATIM`` tables among ``names`` that docs/model.md does not
+    hold exactly; 0 if there is none, else 1."""
+    doc = set(MODEL_MD.read_text(encoding="utf-8").splitlines())
+    missing = 0
+    for name in names:
+        if name not in VERBATIM:
+            continue
+        for line in TABLES[name][0](runs):
+            if line not in doc:
+                missing += 1
+                print(f"{name}: docs/model.md lacks: {line}")
+    print(f"{missing} row(s) of {', '.join(n for n in names if n in VERBATIM)} differ")
+    return 1 if missing else 0
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("tables", nargs="*", help=f"which tables (default all): {', '.join(TABLES)}")
     ap.add_argument("--list", action="store_true", help="list the tables and where they go")
+    ap.add_argument(
+        "--check",
+        action="store_true",
+        help=f"compare the tables docs/model.md holds as printed ({', '.join(VERBATIM)}) "
+        "with a new run; exit status 1 if a row differs",
+    )
     ap.add_argument(
         "--set",
         action="append",
@@ -360,6 +386,8 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--set {item!r}: expected TABLE.KEY=VALUE with one TOML value")
         extra[key.strip()] = value
     runs = Runs(extra)
+    if args.check:
+        return check(runs, args.tables or list(TABLES))
     for name in args.tables or list(TABLES):
         fn, where = TABLES[name]
         wall0 = time.perf_counter()
