@@ -12,7 +12,8 @@ reads older files without it (``sim.runfile``).
 from __future__ import annotations
 
 import csv
-from typing import TextIO
+from collections.abc import Sequence
+from typing import Any, TextIO
 
 from serial_protocol.messages import Fault, State, Telemetry
 
@@ -32,6 +33,20 @@ TELEMETRY_CSV_COLUMNS = (
     "bus_voltage_v",
 )
 
+_STATE_NAMES = {int(s): s.name for s in State}
+_FAULT_NAMES = {int(f): f.name for f in Fault}
+
+
+def _list(values: Any) -> list[Any]:
+    """A column as a list of Python scalars (numpy's ``tolist``: the same values as
+    ``float()`` / ``int()`` of each element)."""
+    return values.tolist() if hasattr(values, "tolist") else list(values)
+
+
+def _names(codes: Any, names: dict[int, str], enum: Any) -> list[str]:
+    # an unknown code raises the ValueError naming it that enum(code) raises
+    return [names[c] if c in names else enum(c).name for c in _list(codes)]
+
 
 class TelemetryCsvWriter:
     """Write ``Telemetry`` rows to an open text file (header first)."""
@@ -46,19 +61,39 @@ class TelemetryCsvWriter:
 
     def write(self, msg: Telemetry) -> None:
         """Append one row."""
-        self._writer.writerow(
-            (
-                f"{msg.tick / self.tick_hz:.6f}",
-                msg.tick,
-                repr(msg.sp_pos_deg),
-                repr(msg.sp_vel_dps),
-                repr(msg.pos_deg),
-                repr(msg.vel_dps),
-                repr(msg.current_a),
-                repr(msg.duty),
-                State(msg.state).name,
-                Fault(msg.fault).name,
-                repr(msg.bus_voltage_v),
-            )
-        )
-        self.rows += 1
+        self.write_columns(
+            [msg.tick], [msg.sp_pos_deg], [msg.sp_vel_dps], [msg.pos_deg], [msg.vel_dps],
+            [msg.current_a], [msg.duty], [msg.state], [msg.fault], [msg.bus_voltage_v],
+        )  # fmt: skip
+
+    def write_columns(
+        self,
+        tick: Sequence[int] | Any,
+        sp_pos_deg: Sequence[float] | Any,
+        sp_vel_dps: Sequence[float] | Any,
+        pos_deg: Sequence[float] | Any,
+        vel_dps: Sequence[float] | Any,
+        current_a: Sequence[float] | Any,
+        duty: Sequence[float] | Any,
+        state: Sequence[int] | Any,
+        fault: Sequence[int] | Any,
+        bus_voltage_v: Sequence[float] | Any,
+    ) -> None:
+        """Append one row per element of the columns (sequences or numpy arrays of the
+        ``Telemetry`` fields, all of one length): the rows :meth:`write` would write for
+        the messages, without building one per row."""
+        ticks = _list(tick)
+        floats = (sp_pos_deg, sp_vel_dps, pos_deg, vel_dps, current_a, duty)
+        cols = [
+            [f"{t / self.tick_hz:.6f}" for t in ticks],
+            ticks,
+            *(list(map(repr, _list(c))) for c in floats),
+            _names(state, _STATE_NAMES, State),
+            _names(fault, _FAULT_NAMES, Fault),
+            list(map(repr, _list(bus_voltage_v))),
+        ]
+        n = len(ticks)
+        if any(len(c) != n for c in cols):
+            raise ValueError(f"columns of {sorted({len(c) for c in cols})} rows: need one length")
+        self._writer.writerows(zip(*cols, strict=True))
+        self.rows += n
