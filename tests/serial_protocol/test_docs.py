@@ -232,3 +232,23 @@ def test_protocol_lists_of_messages_match_the_code():
         f"0x{min(t for t in types if t >= 0x80):02X}..0x{max(t for t in types if t >= 0x80):02X}"
     )
     assert f"| message numbering | 0x01..0x0B, 0x81..0x88 | {ranges} (section 4) |" in DOC
+
+
+def test_protocol_states_the_payload_ceiling_and_the_room_left():
+    """Section 2's 64-byte ceiling is the codec's, and section 6's room to append lists the
+    four longest payloads with their size and what is left of the ceiling."""
+    top = frame.MAX_PAYLOAD_BYTES
+    assert f"payload length in bytes, 0..{top}" in DOC
+    assert (
+        f"with `len > {top}` is invalid" in DOC and f"reject the candidate if `len > {top}`" in DOC
+    )
+    room = re.search(
+        r"\*\*Room to append\.\*\* A payload is at most (\d+) bytes(.*?)\n-", DOC, re.S
+    )
+    assert room and int(room.group(1)) == top
+    listed = re.findall(r"`(\w+)` (\d+) \((\d+)", " ".join(room.group(2).split()))
+    longest = sorted(frame._BY_CLASS.items(), key=lambda kv: -kv[1].payload.size)[:4]
+    want = [(cls.__name__, c.payload.size, top - c.payload.size) for cls, c in longest]
+    assert [(n, int(size), int(left)) for n, size, left in listed] == want, (
+        f"docs/protocol.md section 6, 'Room to append', should list (name, payload, left): {want}"
+    )
