@@ -44,9 +44,11 @@ from firmware_model.laws.layout import (
     C_SENSE_OFFSET_B,
     P_DERATE,
     P_DUTY,
+    P_EMF_RISE,
     P_IMEAS,
     P_IREF,
     P_POS,
+    P_R_RISE,
     P_VEL,
     P_VEL_RAW,
 )
@@ -377,6 +379,7 @@ class Firmware:
         fs[ftick.FS_MM_OFFSET_A] = offset_counts * params.current.a_per_adc
         fs[ftick.FS_MM_R_SPREAD] = s.sensor_mismatch_r_spread
         fs[ftick.FS_BUS_V_PER_COUNT] = v_per_count
+        fs[ftick.FS_BRAKE_CAP] = s.brake_current_limit_a
         self._prof = np.zeros((0, 5))
         self._prof_of: Any = None  # the (profile, start time) packed into _prof
 
@@ -463,7 +466,11 @@ class Firmware:
         if trip:
             self._current_trips()
             enabled = self._enabled.copy()
-        safety.brake_enable(enabled, self._brake_ticks)  # duty 0 with the bridge on
+        # duty 0 with the bridge on (or off while a capped brake holds off)
+        safety.brake_enable(
+            enabled, self._brake_ticks, law.P[P_VEL], self._r_ohm, self._emf_v_per_dps,
+            law.P[P_R_RISE], law.P[P_EMF_RISE], self._fs[ftick.FS_BRAKE_CAP],
+        )  # fmt: skip
         if self._scalar:
             return float(law.duty[0]), bool(enabled[0])
         # Copies: the caller may keep them; the law's arrays change next period.

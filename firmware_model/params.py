@@ -404,6 +404,14 @@ class SafetyParams(_Checked):
             through its own resistance; no sensor needed) for this long, then the bridge
             off. 0 = the bridge off at once (the motor coasts). Over-current always turns
             the bridge off at once.
+        brake_current_limit_a: a cap on that brake's current (A; 0 = none, the full short,
+            bounded only by the BTN7971B's own current limitation). The short's current is
+            the back-EMF over R; the firmware cannot measure it (its sense is the high
+            sides' IS pins), so it holds the short off, the bridge off and the motor
+            coasting, until its model predicts the short's current at or below the cap,
+            ``|k_emf v| <= R cap``, then shorts for ``brake_s``. Coasting returns nothing to
+            the bus while the back-EMF stays below it (docs/model.md, "The brake's current
+            after a bus trip").
         thermal_protection: the firmware's estimate of the winding temperature
             (``firmware_model.thermal.thermal_protection``: the two-node network of
             ``firmware_model.thermal`` fed with ``i_meas^2 R(T)`` into the winding and
@@ -417,6 +425,15 @@ class SafetyParams(_Checked):
             power-up, ``R_nom (1 + alpha (T_est - thermal_ambient_c))`` (``R_nom``:
             ``[controller.current] resistance_ohm``, taken as the power-up value); needs
             ``thermal_protection`` (off, or without it: ``R_nom``).
+        thermal_ff_back_emf: the current loop's back-EMF feed-forward constant (and its
+            regenerative clamp's and the regenerative bus-current limit's) follows the
+            same estimate, ``k_emf (1 + thermal_magnet_tc_per_k (T_est -
+            thermal_ambient_c))`` (``k_emf``: ``[controller.current] back_emf_v_per_dps``,
+            the power-up value): the magnets weaken as the motor warms, and a cold
+            ``k_emf`` drives a reversing current past the limit (docs/model.md, "Thermal
+            protection"); needs ``thermal_protection``.
+        thermal_magnet_tc_per_k: the firmware's copy of the magnets' remanence coefficient
+            (1/K; hard ferrite -0.002, sintered NdFeB about -0.001).
     """
 
     over_current_a: float = _f(7.5, _rng(0.01, 60.0))
@@ -433,6 +450,7 @@ class SafetyParams(_Checked):
     sensor_mismatch_tolerance_ratio: float = _f(0.25, _rng(0.0, 10.0))
     encoder_diag_ticks: int = _f(3, _irng(1, 1000))
     brake_s: float = _f(0.4, _rng(0.0, 10.0))
+    brake_current_limit_a: float = _f(0.0, _rng(0.0, 100.0))
     thermal_protection: bool = _f(True, _boolean)
     thermal_derate_c: float = _f(100.0, _rng(-40.0, 250.0))
     thermal_trip_c: float = _f(120.0, _rng(-40.0, 250.0))
@@ -445,6 +463,8 @@ class SafetyParams(_Checked):
     thermal_tau_housing_s: float = _f(900.0, _rng(1.0, 1e5))
     thermal_no_load_current_a: float = _f(0.4, _rng(0.0, 10.0))
     thermal_ff_resistance: bool = _f(True, _boolean)
+    thermal_ff_back_emf: bool = _f(True, _boolean)
+    thermal_magnet_tc_per_k: float = _f(-0.002, _rng(-0.01, 0.0))
     sensor_mismatch_measured_bus: bool = _f(False, _boolean)
     sensor_mismatch_sense_spread: float = _f(0.65, _rng(0.0, 0.99))
     sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))

@@ -34,6 +34,7 @@ __all__ = [
     "WIRE_POS_MAX_DEG",
     "brake_countdown",
     "brake_enable",
+    "brake_shorts",
     "bus_voltage_screen",
     "edge_speed_dps",
     "wire_pos",
@@ -290,23 +291,43 @@ def sensor_mismatch_step(
     return worst
 
 
+@kernel(inline="always")
+def brake_shorts(j, brake_ticks, vel_dps, r_ohm, emf_v_per_dps, r_rise, emf_rise, cap_a):
+    """Whether member ``j``'s fault-reaction brake shorts the motor now: it is braking
+    (``brake_ticks[j] > 0``) and either the brake current is not capped (``cap_a <= 0``) or
+    the firmware's model predicts the short's current at or below the cap, ``|k_emf,T v| <=
+    R_T cap_a`` (``k_emf,T = emf_v_per_dps (1 + emf_rise)``, ``R_T = r_ohm (1 + r_rise)``:
+    the current loop's model at its winding estimate; ``v``: the velocity estimate, deg/s).
+    A short's current is the back-EMF over R and can only fall as the motor slows, so the
+    brake holds off (the bridge off: the motor coasts) until the speed allows the cap."""
+    if brake_ticks[j] <= 0:
+        return False
+    if cap_a <= 0.0:
+        return True
+    emf = abs(vel_dps[j] * emf_v_per_dps[j] * (1.0 + emf_rise[j]))
+    return emf <= cap_a * r_ohm[j] * (1.0 + r_rise[j])
+
+
 @kernel
-def brake_countdown(brake_ticks):
+def brake_countdown(brake_ticks, vel_dps, r_ohm, emf_v_per_dps, r_rise, emf_rise, cap_a):
     """One servo tick of the fault reaction's dynamic braking: each member's remaining
-    braking ticks (int64 ``(N,)``, set by a trip to ``brake_s`` worth) count down to 0."""
+    braking ticks (int64 ``(N,)``, set by a trip to ``brake_s`` worth) count down to 0 while
+    it shorts the motor (``brake_shorts``); a brake holding off for its current cap keeps
+    them (the ``brake_s`` of shorting starts when the speed allows the cap)."""
     for j in range(brake_ticks.shape[0]):
-        if brake_ticks[j] > 0:
+        if brake_shorts(j, brake_ticks, vel_dps, r_ohm, emf_v_per_dps, r_rise, emf_rise, cap_a):
             brake_ticks[j] -= 1
 
 
 @kernel
-def brake_enable(enable, brake_ticks):
+def brake_enable(enable, brake_ticks, vel_dps, r_ohm, emf_v_per_dps, r_rise, emf_rise, cap_a):
     """The bridge enable of one current-loop period: a member still braking after a trip
     keeps its bridge on (``enable`` bool ``(N,)``, in place) with the duty 0 the law gives
     a disabled member: both low-side switches on, the motor's back-EMF drives a braking
-    current through its own resistance."""
+    current through its own resistance — unless the brake current is capped and the short
+    would pass the cap (``brake_shorts``): then the bridge stays off and the motor coasts."""
     for j in range(enable.shape[0]):
-        if brake_ticks[j] > 0:
+        if brake_shorts(j, brake_ticks, vel_dps, r_ohm, emf_v_per_dps, r_rise, emf_rise, cap_a):
             enable[j] = True
 
 

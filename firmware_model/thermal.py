@@ -95,9 +95,9 @@ def network_step(temps, j, p_w, p_h, t_a, net):
 # over one servo tick (``N_NET``), then these.
 (
     TP_ON, TP_ALPHA, TP_REF_C, TP_AMBIENT_C, TP_NO_LOAD_A, TP_DERATE_C, TP_TRIP_C, TP_MIN_RATIO,
-    TP_FF_R,
-) = range(N_NET, N_NET + 9)  # fmt: skip
-N_TP = N_NET + 9
+    TP_FF_R, TP_MAGNET, TP_FF_EMF,
+) = range(N_NET, N_NET + 11)  # fmt: skip
+N_TP = N_NET + 11
 # The temperature the firmware's resistance ([controller.current] resistance_ohm) is given at.
 REFERENCE_C = 20.0
 # The bounds of the feed-forward resistance's relative rise alpha (T_est - T_ambient): the
@@ -105,6 +105,10 @@ REFERENCE_C = 20.0
 # temperature), so that R_nom times it stays a Q8.24 number for R_nom up to 64 Ohm in the
 # fixed-point law.
 R_RISE_MIN, R_RISE_MAX = -0.5, 1.0
+# The bounds of the back-EMF constant's relative change beta (T_est - T_ambient): the factor
+# stays within [0.5, 1.5] (a ferrite magnet 250 K above its power-up temperature at -0.2 %/K
+# is still inside), a positive Q8.24 number in the fixed-point law.
+EMF_RISE_MIN, EMF_RISE_MAX = -0.5, 0.5
 
 
 def protection_constants(safety: object, dt_s: float) -> np.ndarray:
@@ -119,12 +123,15 @@ def protection_constants(safety: object, dt_s: float) -> np.ndarray:
         1.0 if s.thermal_protection else 0.0, s.thermal_alpha_cu_per_k, REFERENCE_C,
         s.thermal_ambient_c, s.thermal_no_load_current_a, s.thermal_derate_c, s.thermal_trip_c,
         s.thermal_derate_min_ratio, 1.0 if s.thermal_ff_resistance else 0.0,
+        s.thermal_magnet_tc_per_k, 1.0 if s.thermal_ff_back_emf else 0.0,
     )  # fmt: skip
     return tp
 
 
 @kernel(error_model="numpy")
-def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate, rise):
+def thermal_protection(
+    i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate, rise, emf_rise
+):
     """The firmware's thermal protection, one servo tick for every member. ``fs[at:]``
     holds its constants (``tp``: ``N_TP`` numbers, the ``TP_*`` offsets from ``at``), then
     each member's estimate of the winding and housing temperatures (degC, two numbers per
@@ -138,7 +145,11 @@ def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at,
     resistance's relative rise since power-up at the new estimate, ``alpha (T_est -
     T_ambient)`` within ``[R_RISE_MIN, R_RISE_MAX]``, which the current loop's feed-forward R
     follows (its ``R_nom`` is the power-up value: the assumed ambient is the protection's
-    worst case, not a measurement, and would bias the feed-forward).
+    worst case, not a measurement, and would bias the feed-forward); with ``TP_FF_EMF`` set,
+    ``emf_rise[j]`` (the law's ``P_EMF_RISE``) likewise becomes the back-EMF constant's
+    relative change, ``beta (T_est - T_ambient)`` within ``[EMF_RISE_MIN, EMF_RISE_MAX]``
+    (``beta``: the magnets' remanence coefficient, ``TP_MAGNET``), which the current loop's
+    back-EMF feed-forward and its regenerative clamp follow.
     Returns True if an enabled member's estimate reached ``TP_TRIP_C`` (the ``THERMAL``
     trip). It knows nothing of the plant's temperatures."""
     lo, hi = fs[at + TP_DERATE_C], fs[at + TP_TRIP_C]
@@ -156,6 +167,9 @@ def thermal_protection(i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at,
         if fs[at + TP_FF_R] != 0.0:
             up = fs[at + TP_ALPHA] * (t_w - fs[at + TP_AMBIENT_C])
             rise[j] = min(max(up, R_RISE_MIN), R_RISE_MAX)
+        if fs[at + TP_FF_EMF] != 0.0:
+            up = fs[at + TP_MAGNET] * (t_w - fs[at + TP_AMBIENT_C])
+            emf_rise[j] = min(max(up, EMF_RISE_MIN), EMF_RISE_MAX)
         if t_w <= lo:
             derate[j] = 0.0
         elif t_w >= hi:

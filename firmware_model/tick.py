@@ -28,6 +28,7 @@ from firmware_model.laws.layout import (
     K_BUS_HOLD,
     P_DERATE,
     P_DUTY,
+    P_EMF_RISE,
     P_IMEAS,
     P_POS,
     P_R_RISE,
@@ -52,9 +53,11 @@ __all__ = [
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
     FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
     FS_MM_V_PER_BUS, FS_MM_SENSE_SPREAD, FS_MM_OFFSET_A, FS_MM_R_SPREAD, FS_BUS_V_PER_COUNT,
-) = range(33)  # fmt: skip
-N_FS = 33
+    FS_BRAKE_CAP,
+) = range(34)  # fmt: skip
+N_FS = 34
 # FS_BUS_V_PER_COUNT: volts per count of the bus reading (what BoardHeartbeat reports).
+# FS_BRAKE_CAP: the fault reaction's brake current cap (A; 0 = none: the full short).
 # The thermal protection's block at the end of fs (Firmware sizes fs to hold it):
 # fs[FS_THERMAL:FS_THERMAL + thermal.N_TP] its constants, then (T_w, T_h) of each member
 # (its estimate, degC). Not in sf: growing that tuple made every compiled tick ~0.4 us
@@ -153,7 +156,9 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     rows); the thermal protection (``firmware_model.thermal.thermal_protection``) keeps its
     constants and estimate in ``fs`` from ``FS_THERMAL``."""
     mismatch, brake, diag_ticks = sf[SF_MISMATCH], sf[SF_BRAKE], sf[SF_DIAG_TICKS]
-    safety.brake_countdown(brake)
+    safety.brake_countdown(
+        brake, P[P_VEL], sf[SF_R], sf[SF_EMF], P[P_R_RISE], P[P_EMF_RISE], fs[FS_BRAKE_CAP]
+    )
     # The duty applied in the last current period, the current it measured, the encoder's
     # speed: the check needs no law step of this tick.
     # R's rise with the thermal protection's winding estimate (none when it is off).
@@ -175,7 +180,7 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     # The thermal protection (its estimate, the derating of this tick's current limit).
     if fs[FS_THERMAL + TP_ON] != 0.0 and thermal_protection(
         P[P_IMEAS], P[P_VEL], enabled, sf[SF_R], sf[SF_EMF], fs, FS_THERMAL, P[P_DERATE],
-        P[P_R_RISE],
+        P[P_R_RISE], P[P_EMF_RISE],
     ):
         sensor = True
     t_s = fi[FI_TICK] * fs[FS_DT]

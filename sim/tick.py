@@ -52,9 +52,11 @@ from firmware_model.laws.layout import (
     C_BUS_ADC,
     C_CAL_LEFT,
     P_DUTY,
+    P_EMF_RISE,
     P_IMEAS,
     P_IREF,
     P_POS,
+    P_R_RISE,
     P_VEL,
     P_VEL_RAW,
 )
@@ -67,6 +69,7 @@ from firmware_model.tick import (
     FI_TX_BYTES,
     FI_TX_DROPPED,
     FI_TX_FRAMES,
+    FS_BRAKE_CAP,
     FS_SP_ACC,
     FS_SP_POS,
     FS_SP_VEL,
@@ -296,7 +299,10 @@ def run_ticks(
                     ctx[CX_STAGE] = BRIDGE
                     return STOP_OC
             if stage == BRIDGE:
-                safety.brake_enable(en_now, brake_ticks)
+                safety.brake_enable(
+                    en_now, brake_ticks, P[P_VEL], sf[1], sf[2], P[P_R_RISE], P[P_EMF_RISE],
+                    fs[FS_BRAKE_CAP],
+                )  # fmt: skip
                 apply_bridge(
                     P[P_DUTY], en_now, C[C_CAL_LEFT], arr, supply_v, duty, enable, sense_sign,
                     volt,

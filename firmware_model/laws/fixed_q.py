@@ -28,6 +28,7 @@ from firmware_model.laws.layout import (
     C_STUCK,
     G_ACC_FF,
     G_EMF_FF,
+    G_EMF_T,
     G_K_ACC,
     G_K_VEL,
     G_KDIST,
@@ -60,6 +61,7 @@ from firmware_model.laws.layout import (
     K_V_PER_BUS_ADC_Q,
     P_DERATE,
     P_DUTY,
+    P_EMF_RISE,
     P_IMEAS,
     P_IREF,
     P_POS,
@@ -144,7 +146,7 @@ def _bus_v_q(j, C, K):
 @kernel
 def _regen_limits_q(j, il, C, S, G, K):
     """``float64._regen_limits`` in Q16.16 (one 64-bit division)."""
-    emf = _mul(S[S_VEL, j], G[G_EMF_FF, j])
+    emf = _mul(S[S_VEL, j], G[G_EMF_T, j])
     lo, hi = -il, il
     if emf != 0:
         bound = (qsig(K[K_REGEN_A]) * _bus_v_q(j, C, K)) // abs(emf)
@@ -203,6 +205,7 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
         # 1 + rise (Q8.24, within [0.5, 2]), one SMULL and a shift; the factor comes from the
         # thermal estimate once per servo tick, as the derating does.
         G[G_R_T, j] = _mul(G[G_R_FF, j], qgain(1.0 + P[P_R_RISE, j]))
+        G[G_EMF_T, j] = _mul(G[G_EMF_FF, j], qgain(1.0 + P[P_EMF_RISE, j]))
         e = _sat(_sat(sp_count - C[C_COUNT, j]) * Q_DEG_PER_COUNT)
         vr = _clamp(_sat(_mul(e, G[G_KP_P, j]) + _mul(sv, G[G_VFF, j])), vc)
         ev = _sat(vr - S[S_VEL, j])
@@ -251,7 +254,7 @@ def current(adc, enabled, P, C, S, G, K):
         e = _sat(ref_d - i_meas)
         i_ref = S[S_IREF, j]
         S[ref_row, j] = i_ref
-        emf = _mul(S[S_VEL, j], G[G_EMF_FF, j])
+        emf = _mul(S[S_VEL, j], G[G_EMF_T, j])
         u = _sat(_mul(e, G[G_KP_I, j]) + S[S_I_I, j])
         u = _sat(u + _mul(i_ref, G[G_R_T, j]))
         u = _sat(u + emf)

@@ -27,6 +27,7 @@ from firmware_model.laws.layout import (
     C_STUCK,
     G_ACC_FF,
     G_EMF_FF,
+    G_EMF_T,
     G_K_ACC,
     G_K_VEL,
     G_KDIST,
@@ -57,6 +58,7 @@ from firmware_model.laws.layout import (
     K_V_PER_BUS_ADC,
     P_DERATE,
     P_DUTY,
+    P_EMF_RISE,
     P_IMEAS,
     P_IREF,
     P_POS,
@@ -144,7 +146,7 @@ def _regen_limits(j, i_limit_a, regen_a, C, S, G, K):
     limit: on the braking side (the current against the back-EMF ``k_emf v``), ``|i| <=
     regen_a V_bus / |k_emf v|``, which keeps the current returned to the bus, ``(|k_emf v|
     |i| - R i^2) / V_bus``, below ``regen_a`` (conservative by the copper loss)."""
-    emf = S[S_VEL, j] * G[G_EMF_FF, j]
+    emf = S[S_VEL, j] * G[G_EMF_T, j]
     lo, hi = -i_limit_a, i_limit_a
     if emf != 0.0:
         bound = regen_a * bus_v(j, C, K) / abs(emf)
@@ -164,9 +166,11 @@ def servo(sp_pos_deg, sp_vel_dps, sp_acc_dps2, v_clamp_dps, i_limit_a, P, C, S, 
     i_limit_all = i_limit_a
     for j in range(C.shape[1]):
         # The thermal protection's derating of this member (1 - 0 = the limit itself), and
-        # the current loop's feed-forward R at its winding estimate (x 1.0: the nominal R).
+        # the current loop's feed-forward R and back-EMF constant at its winding estimate
+        # (x 1.0: the nominal ones).
         i_limit_a = i_limit_all * (1.0 - P[P_DERATE, j])
         G[G_R_T, j] = G[G_R_FF, j] * (1.0 + P[P_R_RISE, j])
+        G[G_EMF_T, j] = G[G_EMF_FF, j] * (1.0 + P[P_EMF_RISE, j])
         e = sp_pos_deg - C[C_COUNT, j] * AXIS_DEG_PER_COUNT
         vr = _clip(e * G[G_KP_P, j] + sp_vel_dps * G[G_VFF, j], v_clamp_dps)
         ev = vr - S[S_VEL, j]
@@ -223,7 +227,7 @@ def current(adc, enabled, P, C, S, G, K):
         e = ref_d - i_meas
         i_ref = S[S_IREF, j]
         S[ref_row, j] = i_ref
-        emf = S[S_VEL, j] * G[G_EMF_FF, j]
+        emf = S[S_VEL, j] * G[G_EMF_T, j]
         u = e * G[G_KP_I, j] + S[S_I_I, j] + i_ref * G[G_R_T, j] + emf
         ii = S[S_I_I, j]
         if not (abs(u) > u_lim and u * e > 0.0):

@@ -30,8 +30,12 @@ Q_DEG_PER_COUNT = int(round(AXIS_DEG_PER_COUNT * (1 << fx.SIG_FRAC_BITS)))
 # protection takes away (0: none; firmware_model.thermal.thermal_protection writes it).
 # P_R_RISE: the winding resistance's relative rise the same estimate gives, alpha (T_est -
 # T_ref), bounded (0: the nominal R; written with [safety] thermal_ff_resistance).
-P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY, P_DERATE, P_R_RISE = range(9)
-N_P = 9
+# P_EMF_RISE: the back-EMF constant's relative change at the same estimate, beta (T_est -
+# T_ref), bounded (0: the nominal k_emf; written with [safety] thermal_ff_back_emf).
+(
+    P_POS, P_VEL, P_VEL_RAW, P_VREF, P_IREF, P_IMEAS, P_DUTY, P_DERATE, P_R_RISE, P_EMF_RISE,
+) = range(10)  # fmt: skip
+N_P = 10
 # C: integers.
 # C_BUS_ADC: the bus-voltage ADC reading of the period (the board writes it, as the IS pin's).
 # C_SENSE_OFFSET_A / _B: the IS readings' offsets (counts) the firmware subtracts, one per
@@ -49,12 +53,13 @@ C_PIPE = 12
 S_EP, S_V, S_AD, S_VEL, S_I_V, S_I_I, S_VR, S_IREF, S_IMEAS, S_REF_D_LAST = range(10)
 S_REF_PIPE = 10
 # G: gains in the law's arithmetic (float64 or Q8.24). G_R_T: the feed-forward's R at the
-# thermal estimate, G_R_FF * (1 + P_R_RISE), set by each servo step for the current loop.
+# thermal estimate, G_R_FF * (1 + P_R_RISE), set by each servo step for the current loop;
+# G_EMF_T likewise the back-EMF constant, G_EMF_FF * (1 + P_EMF_RISE).
 (
     G_KP_P, G_VFF, G_KP_V, G_KI_V_DT, G_ACC_FF, G_KP_I, G_KI_I_DT, G_R_FF, G_EMF_FF,
-    G_KPOS_M1, G_KVEL, G_KDIST, G_K_VEL, G_K_ACC, G_R_T,
-) = range(15)  # fmt: skip
-N_G = 15
+    G_KPOS_M1, G_KVEL, G_KDIST, G_K_VEL, G_K_ACC, G_R_T, G_EMF_T,
+) = range(16)  # fmt: skip
+N_G = 16
 # K: shared float constants; the two pipeline indices are stored as floats (exact).
 # K_BUS_COMP: 1 = duty from the measured bus voltage; K_V_PER_BUS_ADC(_Q): volts per count
 # of it (float, Q8.24); K_REGEN_A: the regenerative bus-current limit (A, 0 = off);

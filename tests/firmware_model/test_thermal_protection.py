@@ -79,10 +79,11 @@ def test_the_plant_heats_where_the_firmware_estimates():
 
 def test_never_trips_nor_derates_in_the_paper_experiments():
     # Fig. 6 (10 s), Fig. 7 and Fig. 8 (30 s) with the protection on (its feed-forward R
-    # aside) are the runs without it: it never derates there.
+    # and k_emf aside) are the runs without it: it never derates there.
+    ff_off = {"safety.thermal_ff_resistance": False, "safety.thermal_ff_back_emf": False}
     for name in ("fig6", "fig7", "fig8"):
         exp = experiments.load(name)
-        on = loop.run(exp, seed=0, overrides={"safety.thermal_ff_resistance": False})
+        on = loop.run(exp, seed=0, overrides=ff_off)
         off = loop.run(exp, seed=0, overrides={"safety.thermal_protection": False})
         for field, column in on.log.items():
             np.testing.assert_array_equal(column, getattr(off.log, field), f"{name} {field}")

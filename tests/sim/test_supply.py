@@ -101,7 +101,10 @@ def test_fig6_braking_locks_the_bridge_out_and_a_brake_resistor_prevents_it():
     assert braked.bus_v.max() <= 26.5 + 1e-9
     assert braked.bus_v.max() > 26.4
     assert abs(braked.true_pos_deg[-1] - 3000.0) < 0.1
-    assert np.all(braked.voltage_v[braked.t_s > 0.01] != 0.0)  # never locked out
+    # Never locked out: the bridge applies every duty the firmware drives (a duty of exactly
+    # 0 on the timer's grid, once as the braking duty crosses zero, applies 0 V).
+    late = braked.t_s > 0.01
+    assert np.all((braked.voltage_v[late] != 0.0) | (braked.duty[late] == 0.0))
 
 
 def test_a_stiff_bus_is_the_stiff_supply():
