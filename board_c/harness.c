@@ -87,6 +87,7 @@ static void on_frame(void *ctx, uint8_t type, uint8_t seq, const uint8_t *payloa
                    (unsigned long)c.u.set_limits.bus_under_voltage,
                    (unsigned long)c.u.set_limits.thermal_derate,
                    (unsigned long)c.u.set_limits.thermal_trip);
+            printf(" %lu", (unsigned long)c.u.set_limits.brake_current_limit);
             break;
         case TT_SET_TELEMETRY: printf(" %u", c.u.set_telemetry.decimation); break;
         case TT_GET_FAULT: printf(" %u", c.u.get_fault.bit); break;
@@ -195,6 +196,7 @@ static size_t encode_message(unsigned type, uint8_t *p, int *ok)
         m.bus_over_voltage = v(t, ok); m.bus_under_voltage = v(t, ok);
         m.thermal_trip = v(t, ok); m.winding_estimate = v(t, ok);
         m.thermal_derate = v(t, ok);
+        m.brake_current_limit = v(t, ok);
         return tt_encode_limits(p, &m);
     }
     case TT_STATUS: {

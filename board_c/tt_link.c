@@ -245,7 +245,7 @@ static const uint8_t command_len[0x13] = {
     0, 6, 4, 21, 8, 5, 4, 17, 5, 24, 4, 4, 6, 5, 16, 9, 11, 49, 14,
 };
 static const uint8_t command_full_len[0x13] = {
-    0, 6, 4, 21, 8, 5, 4, 17, 5, 40, 4, 4, 6, 5, 16, 9, 11, 49, 14,
+    0, 6, 4, 21, 8, 5, 4, 17, 5, 44, 4, 4, 6, 5, 16, 9, 11, 49, 14,
 };
 
 int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cmd,
@@ -320,6 +320,7 @@ int tt_decode_command(uint8_t type, const uint8_t *p, size_t len, tt_command *cm
         cmd->u.set_limits.bus_under_voltage = get_u32(p + 28);
         cmd->u.set_limits.thermal_derate = get_u32(p + 32);
         cmd->u.set_limits.thermal_trip = get_u32(p + 36);
+        cmd->u.set_limits.brake_current_limit = get_u32(p + 40);
         break;
     case TT_SET_TELEMETRY:
         cmd->u.set_telemetry.decimation = get_u16(p + 4);
@@ -480,6 +481,7 @@ size_t tt_encode_limits(uint8_t *out, const tt_limits *m)
     put_u32(out, &at, m->thermal_trip);
     put_u32(out, &at, m->winding_estimate);
     put_u32(out, &at, m->thermal_derate);
+    put_u32(out, &at, m->brake_current_limit);
     return at;
 }
 

@@ -120,6 +120,7 @@ typedef struct {
             uint32_t v_max, a_max, current_limit, following_error, over_current_trip;
             /* appended (an older PC's shorter payload: 0 = keep the board's) */
             uint32_t bus_over_voltage, bus_under_voltage, thermal_derate, thermal_trip;
+            uint32_t brake_current_limit;
         } set_limits;
         struct { uint16_t decimation; } set_telemetry;
         struct { uint8_t bit; } get_fault;
@@ -188,6 +189,7 @@ typedef struct {
     uint32_t bus_over_voltage, bus_under_voltage; /* appended: f32 bits, 0 = off */
     uint32_t thermal_trip, winding_estimate; /* appended: f32 bits, 0 = off */
     uint32_t thermal_derate;                  /* appended: f32 bits, 0 = off */
+    uint32_t brake_current_limit;             /* appended: f32 bits, 0 = none */
 } tt_limits;
 typedef struct {
     uint16_t cmd_id;

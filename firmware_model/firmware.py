@@ -141,6 +141,10 @@ _MUTATING = (
 MIN_POSITIVE = 1e-3
 #: The range of the thermal protection's thresholds (degC; ``[safety] thermal_*_c``).
 THERMAL_MIN_C, THERMAL_MAX_C = -40.0, 250.0
+#: The largest cap on the brake after a trip (A; ``[safety] brake_current_limit_a``): above
+#: any short-circuit current of a motor on this bridge (the BTN7971B limits at 70 A), so it
+#: also stands for "no cap" over the wire, where 0 keeps the board's value.
+BRAKE_CAP_MAX_A = 100.0
 #: Longest dwell of a program block (s).
 MAX_DWELL_S = 3600.0
 #: Smallest receive ring of the board (bytes per servo tick); at high baud rates the ring
@@ -1049,6 +1053,7 @@ class Firmware:
                     float(self._thermal_est[0, 0]) if s.thermal_protection else 0.0
                 ),
                 thermal_derate_c=derate_c if s.thermal_protection else 0.0,
+                brake_current_limit_a=float(self._fs[ftick.FS_BRAKE_CAP]),
             )  # fmt: skip
         if isinstance(msg, GetFault):
             if not 0 <= msg.bit <= 31:
@@ -1602,6 +1607,8 @@ class Firmware:
             ("bus_under_voltage_v", MIN_POSITIVE, supply_v, s.bus_voltage_check),
             ("thermal_derate_c", THERMAL_MIN_C, THERMAL_MAX_C, s.thermal_protection),
             ("thermal_trip_c", THERMAL_MIN_C, THERMAL_MAX_C, s.thermal_protection),
+            # Any brake may be capped (the cap is off by default, not a check turned off).
+            ("brake_current_limit_a", MIN_POSITIVE, BRAKE_CAP_MAX_A, True),
         ):
             value = getattr(m, name)
             if value != 0.0:  # NaN too: refused as NOT_FINITE
@@ -1630,6 +1637,8 @@ class Firmware:
             self._fs[at + TP_DERATE_C] = float(m.thermal_derate_c)
         if m.thermal_trip_c != 0.0:
             self._fs[at + TP_TRIP_C] = float(m.thermal_trip_c)
+        if m.brake_current_limit_a != 0.0:
+            self._fs[ftick.FS_BRAKE_CAP] = float(m.brake_current_limit_a)
 
     def _cmd_clear_fault(self, m: ClearFault) -> _Refusal | None:
         # Without a latched fault: ACKed, nothing changes (the bridge stays as it is).

@@ -290,6 +290,8 @@ _ROWS: tuple[_Row, ...] = (
                appended=True),
             _f("thermal_derate_c", "f32", "degC", "derating starts; 0 = keep", appended=True),
             _f("thermal_trip_c", "f32", "degC", "thermal trip; 0 = keep", appended=True),
+            _f("brake_current_limit_a", "f32", "A", "cap on the brake after a trip; 0 = keep",
+               appended=True),
         ),
     ),  # fmt: skip
     _Row(GetLimits, (_CMD_ID, _SESSION)),
@@ -427,6 +429,13 @@ _ROWS: tuple[_Row, ...] = (
                 "f32",
                 "degC",
                 "thermal protection's derating start; 0 = off",
+                appended=True,
+            ),
+            _f(
+                "brake_current_limit_a",
+                "f32",
+                "A",
+                "cap on the brake after a trip; 0 = none (the full short)",
                 appended=True,
             ),  # fmt: skip
         ),

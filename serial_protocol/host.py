@@ -317,15 +317,16 @@ class BoardClient:
         bus_under_voltage_v: float = 0.0,
         thermal_derate_c: float = 0.0,
         thermal_trip_c: float = 0.0,
+        brake_current_limit_a: float = 0.0,
     ) -> Ack | Nack:
         """Set the motion limits, the current clamp and the trip thresholds
-        (``over_current_trip_a``, the bus trips' V and the thermal protection's degC: 0
-        keeps the board's)."""
+        (``over_current_trip_a``, the bus trips' V, the thermal protection's degC and the
+        cap on the brake after a trip, A: 0 keeps the board's)."""
         msg = SetLimits(
             self.next_cmd_id(), v_max_dps, a_max_dps2, current_limit_a, following_error_deg,
             over_current_trip_a, bus_over_voltage_v=bus_over_voltage_v,
             bus_under_voltage_v=bus_under_voltage_v, thermal_derate_c=thermal_derate_c,
-            thermal_trip_c=thermal_trip_c,
+            thermal_trip_c=thermal_trip_c, brake_current_limit_a=brake_current_limit_a,
         )  # fmt: skip
         return self.command(msg)  # type: ignore[return-value]
 

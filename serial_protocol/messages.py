@@ -376,10 +376,10 @@ class SetLimits:
     is the over-current trip threshold (must be >= the clamp). NaN for
     ``over_current_trip_a`` is refused like any other field.
 
-    Appended (extension rule): the bus over/under-voltage trips' thresholds (V) and the
-    thermal protection's derating start and trip (degC). For these and
-    ``over_current_trip_a``, 0 keeps the board's present value: an older PC's shorter
-    payload reads them as 0, so it changes none of them.
+    Appended (extension rule): the bus over/under-voltage trips' thresholds (V), the
+    thermal protection's derating start and trip (degC), then the cap on the fault
+    reaction's brake current (A). For these and ``over_current_trip_a``, 0 keeps the board's
+    present value: an older PC's shorter payload reads them as 0, so it changes none of them.
     """
 
     MSG_TYPE: ClassVar[int] = MsgType.SET_LIMITS
@@ -394,6 +394,7 @@ class SetLimits:
     bus_under_voltage_v: float = 0.0
     thermal_derate_c: float = 0.0
     thermal_trip_c: float = 0.0
+    brake_current_limit_a: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -736,6 +737,9 @@ class Limits:
     thermal_trip_c: float = 0.0
     winding_estimate_c: float = 0.0
     thermal_derate_c: float = 0.0
+    # Appended (extension rule): the cap on the fault reaction's brake current (A; 0 = none,
+    # the full short).
+    brake_current_limit_a: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -89,6 +89,7 @@ COMMAND_FIELDS: dict[str, dict[str, tuple[bool, str]]] = {
         "bus_under_voltage_v": (False, "float"),
         "thermal_derate_c": (False, "float"),
         "thermal_trip_c": (False, "float"),
+        "brake_current_limit_a": (False, "float"),
     },
     "get_limits": {},
     "get_fault": {"bit": (True, "int")},
@@ -177,6 +178,7 @@ class ScriptedCommand:
                 bus_under_voltage_v=f.get("bus_under_voltage_v", 0.0),
                 thermal_derate_c=f.get("thermal_derate_c", 0.0),
                 thermal_trip_c=f.get("thermal_trip_c", 0.0),
+                brake_current_limit_a=f.get("brake_current_limit_a", 0.0),
             )
         if self.type == "get_limits":
             return msg.GetLimits(cmd_id)

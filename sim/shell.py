@@ -68,7 +68,10 @@ MOVE_DEFAULTS = {"v_max_dps": 990.0, "a_max_dps2": 148.0, "j_max_dps3": 0.0}
 
 LOOP_WORDS = tuple(loop.name.lower() for loop in Loop)
 #: ``limits``' optional thresholds after the over-current trip (SetLimits' appended fields).
-_THRESHOLDS = ("bus_over_voltage_v", "bus_under_voltage_v", "thermal_derate_c", "thermal_trip_c")
+_THRESHOLDS = (
+    "bus_over_voltage_v", "bus_under_voltage_v", "thermal_derate_c", "thermal_trip_c",
+    "brake_current_limit_a",
+)  # fmt: skip
 PROFILE_WORDS = tuple(p.name.lower() for p in Profile)
 
 
@@ -106,12 +109,13 @@ COMMANDS: dict[str, CommandSpec] = {
     "getgains": CommandSpec("getgains current|velocity|position", "read the gains of one loop"),
     "limits": CommandSpec(
         "limits V_MAX_DPS A_MAX_DPS2 CURRENT_A FOLLOW_DEG [TRIP_A [BUS_OVER_V [BUS_UNDER_V "
-        "[DERATE_C [THERMAL_TRIP_C]]]]]",
+        "[DERATE_C [THERMAL_TRIP_C [BRAKE_A]]]]]]",
         "set the motion limits, the current clamp and the trip thresholds",
         "CURRENT_A clamps the current (never trips); TRIP_A is the over-current trip "
         "threshold, BUS_OVER_V / BUS_UNDER_V the bus voltage trips, DERATE_C / THERMAL_TRIP_C "
-        "where the thermal protection starts derating and trips (each absent or 0: keep the "
-        "board's). Out-of-range values are refused, never clipped.",
+        "where the thermal protection starts derating and trips, BRAKE_A the cap on the brake "
+        "after a trip (each absent or 0: keep the board's). Out-of-range values are refused, "
+        "never clipped.",
     ),
     "fault": CommandSpec(
         "fault BIT", "details of fault flag BIT (0..31): tick, value and threshold"
@@ -403,6 +407,8 @@ def describe(reply: Any, fields: dict[str, Any] | None = None) -> str:
                 f", thermal derate {reply.thermal_derate_c:g} degC, trip "
                 f"{reply.thermal_trip_c:g} degC (winding {reply.winding_estimate_c:.1f} degC)"
             )
+        if reply.brake_current_limit_a:
+            text += f", brake after a trip capped at {reply.brake_current_limit_a:g} A"
         return text
     if isinstance(reply, HelloReply):
         return (

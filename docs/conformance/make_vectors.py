@@ -118,6 +118,11 @@ FRAMES: list[tuple[str, Any, int]] = [
                   bus_under_voltage_v=19.0, thermal_derate_c=90.0, thermal_trip_c=110.0),
         10,
     ),  # fmt: skip
+    (
+        "set_limits_brake_cap",
+        SetLimits(10, 990.0, 148.0, 5.0, 10.0, 0.0, session=S, brake_current_limit_a=5.0),
+        10,
+    ),  # fmt: skip
     ("get_limits", GetLimits(11, session=S), 11),
     ("get_status", GetStatus(12, session=S), 12),
     ("set_telemetry", SetTelemetry(13, 2, session=S), 13),
@@ -204,7 +209,7 @@ FRAMES: list[tuple[str, Any, int]] = [
         "limits",
         Limits(
             11, 990.0, 148.0, 5.0, 10.0, 7.5, -1e5, 1e5, 1100.0, 7.5, 27.0, 18.0, 120.0, 41.5,
-            100.0,
+            100.0, 5.0,
         ),  # fmt: skip
         14,
     ),
@@ -480,6 +485,16 @@ def exchanges() -> list[dict[str, Any]]:
                  msg_type=t.SET_LIMITS, code=NackCode.TOO_HIGH, field=7, limit=0.0), seq=6),
             step(GetLimits(7, session=S), _expect("Limits", cmd_id=7, v_max_dps=900.0,
                  thermal_derate_c=90.0, thermal_trip_c=110.0), seq=7),
+            # the cap on the brake after a trip (none configured): set, kept by 0, refused
+            # out of range with nothing applied
+            step(SetLimits(8, 900.0, 2000.0, 5.0, 30.0, 0.0, session=S,
+                           brake_current_limit_a=5.0), _expect("Ack", cmd_id=8,
+                 msg_type=t.SET_LIMITS), seq=8),
+            step(SetLimits(9, 900.0, 2000.0, 5.0, 30.0, 0.0, session=S,
+                           brake_current_limit_a=150.0), _expect("Nack", cmd_id=9,
+                 msg_type=t.SET_LIMITS, code=NackCode.TOO_HIGH, field=11, limit=100.0), seq=9),
+            step(GetLimits(10, session=S), _expect("Limits", cmd_id=10, v_max_dps=900.0,
+                 brake_current_limit_a=5.0), seq=10),
         ]},
         {"name": "bad_frames_get_one_nack_each", "steps": [
             hello,

@@ -81,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=wire_number(_msg.SetLimits, "v_max_dps"),
         metavar="V",
         help="set the limits: V_MAX A_MAX CURRENT_A FOLLOW_DEG, then optionally TRIP_A "
-        "BUS_OVER_V BUS_UNDER_V DERATE_C THERMAL_TRIP_C (0 keeps the board's)",
+        "BUS_OVER_V BUS_UNDER_V DERATE_C THERMAL_TRIP_C BRAKE_A (0 keeps the board's)",
     )
     parser.add_argument(
         "--gains-from",
@@ -329,13 +329,13 @@ def _scripted(args: argparse.Namespace) -> list[str]:
     if args.disable:
         out.append("disable")
     if args.limits:
-        if not 4 <= len(args.limits) <= 9:
+        if not 4 <= len(args.limits) <= 10:
             from serial_protocol.exceptions import CommandError
 
             raise CommandError(
-                f"--limits {' '.join(repr(v) for v in args.limits)}: takes 4 to 9 numbers "
+                f"--limits {' '.join(repr(v) for v in args.limits)}: takes 4 to 10 numbers "
                 "(V_MAX A_MAX CURRENT_A FOLLOW_DEG [TRIP_A BUS_OVER_V BUS_UNDER_V DERATE_C "
-                "THERMAL_TRIP_C])"
+                "THERMAL_TRIP_C BRAKE_A])"
             )
         out.append("limits " + " ".join(repr(v) for v in args.limits))
     if args.gains_from:

@@ -80,7 +80,7 @@ def test_an_older_pcs_short_set_limits_keeps_the_thresholds():
     # An older PC's SetLimits: the 2.0 fields only (24 bytes), a new v_max.
     msg = SetLimits(77, 800.0, 2000.0, 5.0, 30.0, 0.0, session=pc.session)
     _, payload = frame.encode_payload(msg)
-    assert len(payload) == 40 and frame._BY_CLASS[SetLimits].min_size == 24
+    assert len(payload) == 44 and frame._BY_CLASS[SetLimits].min_size == 24
     sim.pc_write(frame.frame_raw(MsgType.SET_LIMITS, payload[:24], 200))
     replies = []
     for _ in range(20):
@@ -118,6 +118,14 @@ def test_an_older_pcs_short_set_limits_keeps_the_thresholds():
         ({"thermal_trip_c": 95.0}, NackCode.TOO_LOW, "thermal_trip_c", 100.0),
         ({"thermal_derate_c": 130.0, "thermal_trip_c": 125.0}, NackCode.TOO_HIGH,
          "thermal_derate_c", 125.0),
+        # the brake's cap: positive (0 keeps), at most 100 A
+        ({"brake_current_limit_a": -1.0}, NackCode.TOO_LOW, "brake_current_limit_a", 1e-3),
+        ({"brake_current_limit_a": 150.0}, NackCode.TOO_HIGH, "brake_current_limit_a", 100.0),
+        ({"brake_current_limit_a": math.nan}, NackCode.NOT_FINITE, "brake_current_limit_a",
+         0.0),
+        # wire order: a bad cap after a bad trip reports the trip
+        ({"thermal_trip_c": 300.0, "brake_current_limit_a": -1.0}, NackCode.TOO_HIGH,
+         "thermal_trip_c", 250.0),
     ],
 )  # fmt: skip
 def test_a_bad_threshold_is_refused_naming_it_and_nothing_is_applied(fields, code, name, limit):
@@ -130,6 +138,7 @@ def test_a_bad_threshold_is_refused_naming_it_and_nothing_is_applied(fields, cod
     after = fw._query(frame.decode_payload(MsgType.GET_LIMITS, bytes(4)))
     assert after == before
     assert fw.bus_over_voltage_v == 27.0 and fw.thermal_thresholds_c == (100.0, 120.0)
+    assert after.brake_current_limit_a == 0.0
 
 
 def test_a_check_the_configuration_turned_off_takes_only_zero():
@@ -197,3 +206,26 @@ def test_a_stall_trips_at_a_thermal_threshold_set_over_the_wire():
     assert same == report
     hot = np.flatnonzero(wire.log.fault == int(Fault.THERMAL))
     assert hot.size and wire.log.t_s[hot[0]] < 6.0
+
+
+def test_the_brake_cap_set_over_the_wire_is_the_configured_one():
+    # [safety] brake_current_limit_a over SetLimits (appended; 0 keeps): read back, kept by a
+    # later SetLimits without it, and Fig. 6's bus trip brakes exactly as with the cap in
+    # the configuration (the whole log and the PC's bytes).
+    sim, pc = _client()
+    assert pc.get_limits().brake_current_limit_a == 0.0  # none configured: the full short
+    assert isinstance(pc.set_limits(*MOTION, brake_current_limit_a=5.0), Ack)
+    assert pc.get_limits().brake_current_limit_a == 5.0
+    assert isinstance(pc.set_limits(*MOTION), Ack)
+    assert pc.get_limits().brake_current_limit_a == 5.0
+    trip = {"supply.bus_model": True, "safety.bus_voltage_check": True}
+    exp = experiments.with_duration(experiments.load("fig6"), 4.5)
+    wire = loop.run(_with_set_limits(exp, 0.0, brake_current_limit_a=5.0), seed=0,
+                    overrides=trip)  # fmt: skip
+    config = loop.run(_with_set_limits(exp, 0.0), seed=0,
+                      overrides={**trip, "safety.brake_current_limit_a": 5.0})  # fmt: skip
+    k = int(np.argmax(wire.log.fault != 0))
+    assert wire.log.fault[k] == Fault.BUS_OVER_VOLTAGE
+    assert 4.0 < np.abs(wire.log.current_a[k + 2 :]).max() <= 5.0  # the capped short
+    for name, column in wire.log.items():
+        assert np.array_equal(column, getattr(config.log, name)), name

@@ -180,6 +180,9 @@ def test_describe_names_the_field_of_a_v2_nack():
     assert describe(Ack(1, 2)) == "ok"
     limits = describe(Limits(1, 990.0, 148.0, 5.0, 10.0))
     assert limits.startswith("v_max 990 deg/s, a_max 148 deg/s^2")
+    assert "brake" not in limits  # no cap: the full short
+    capped = describe(Limits(1, 990.0, 148.0, 5.0, 10.0, brake_current_limit_a=5.0))
+    assert capped.endswith(", brake after a trip capped at 5 A")
     status = Status(1, 7, State.IDLE, Fault.NONE, 1.0, 0.0, 1.0)
     assert describe(status) == (
         "IDLE: position 1.000 deg, velocity 0.0 deg/s, target 1.000 deg (tick 7)"

@@ -214,6 +214,25 @@ class RecordingClient:
                 },
             ),
         ),
+        (
+            "limits 990 148 5 10 0 0 0 0 0 5",
+            (
+                "set_limits",
+                (),
+                {
+                    "v_max_dps": 990.0,
+                    "a_max_dps2": 148.0,
+                    "current_limit_a": 5.0,
+                    "following_error_deg": 10.0,
+                    "over_current_trip_a": 0.0,
+                    "bus_over_voltage_v": 0.0,
+                    "bus_under_voltage_v": 0.0,
+                    "thermal_derate_c": 0.0,
+                    "thermal_trip_c": 0.0,
+                    "brake_current_limit_a": 5.0,
+                },
+            ),
+        ),
         ("telemetry 2", ("set_telemetry", (2,), {})),
         ("clear", ("clear_fault", (), {})),
         ("enable", ("set_enable", (True,), {})),
@@ -368,14 +387,14 @@ def test_a_bad_gains_file_sends_nothing(tmp_path):
     server.close()
 
 
-def test_limits_option_takes_four_to_nine_numbers(capsys):
+def test_limits_option_takes_four_to_ten_numbers(capsys):
     # The appended thresholds of SetLimits after the four motion limits; a wrong count is
     # one line and exit 2, before any board is opened.
     from sim import cli
 
     assert cli.main(["monitor", "loop://", "--limits", "990", "148", "5"]) == 2
     err = capsys.readouterr().err
-    assert "--limits 990.0 148.0 5.0: takes 4 to 9 numbers" in err and "Traceback" not in err
-    nine = ["990", "148", "5", "10", "0", "26", "0", "90", "110", "1"]
-    assert cli.main(["monitor", "loop://", "--limits", *nine]) == 2
-    assert "takes 4 to 9 numbers" in capsys.readouterr().err
+    assert "--limits 990.0 148.0 5.0: takes 4 to 10 numbers" in err and "Traceback" not in err
+    eleven = ["990", "148", "5", "10", "0", "26", "0", "90", "110", "5", "1"]
+    assert cli.main(["monitor", "loop://", "--limits", *eleven]) == 2
+    assert "takes 4 to 10 numbers" in capsys.readouterr().err
