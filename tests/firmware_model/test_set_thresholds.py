@@ -90,13 +90,26 @@ def test_an_older_pcs_short_set_limits_keeps_the_thresholds():
     assert got.v_max_dps == 800.0  # applied ...
     assert (got.bus_over_voltage_v, got.bus_under_voltage_v) == (26.0, 20.0)  # ... and kept
     assert (got.thermal_derate_c, got.thermal_trip_c) == (80.0, 100.0)
+    # A PC of the thresholds' version (40 bytes, no brake cap): the cap is kept.
+    assert isinstance(pc.set_limits(*MOTION, brake_current_limit_a=6.0), Ack)
+    msg = SetLimits(78, 850.0, 2000.0, 5.0, 30.0, 0.0, session=pc.session, thermal_trip_c=105.0)
+    sim.pc_write(frame.frame_raw(MsgType.SET_LIMITS, frame.encode_payload(msg)[1][:40], 202))
+    replies = []
+    for _ in range(20):
+        replies += pc.link.poll(0.0)
+    assert Ack(78, MsgType.SET_LIMITS) in replies
+    got = pc.get_limits()
+    assert (got.v_max_dps, got.thermal_trip_c, got.brake_current_limit_a) == (850.0, 105.0, 6.0)
     # Cut inside an appended field: BAD_LENGTH, nothing applied.
     sim.pc_write(frame.frame_raw(MsgType.SET_LIMITS, payload[:26], 201))
     replies = []
     for _ in range(20):
         replies += pc.link.poll(0.0)
     assert [r.code for r in replies if isinstance(r, Nack)] == [NackCode.BAD_LENGTH]
-    assert pc.get_limits() == dataclasses.replace(got, cmd_id=pc.last_command.cmd_id)
+    now = pc.get_limits()  # (the thermal estimate moves with time: not a setting)
+    assert now == dataclasses.replace(
+        got, cmd_id=pc.last_command.cmd_id, winding_estimate_c=now.winding_estimate_c
+    )
 
 
 @pytest.mark.parametrize(

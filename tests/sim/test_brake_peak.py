@@ -96,3 +96,24 @@ def test_a_capped_brake_holds_off_until_the_short_is_within_the_cap():
     assert abs(returned_j) < 1e-6  # measured 0.0000 mJ over 3.108-3.336 s of coasting
     # Back at the supply, which cannot sink: a returned current would lift the rail above it.
     assert v[end + 1 :].max() <= float(sup.voltage_v)
+
+
+def test_the_capped_brake_of_a_batch_member_is_its_one_axis_run():
+    # The hold-off is decided per member on its own speed (compiled once for N): two motors
+    # in one batch brake exactly as each alone (encoder noise off: a batch draws each
+    # member's noise from its own stream), each switching to the short at its own tick.
+    over = {**TRIP, "safety.brake_current_limit_a": 5.0, "encoder.noise_rms_lsb": 0.0}
+    r_ohm = [1.2, 1.4]
+    exp = experiments.with_duration(experiments.load("fig6"), 4.6)
+    batch = loop.run(exp, seed=0, batch=2, overrides={**over, "motor.r_ohm": r_ohm}).log
+    shorts = []
+    for k, r in enumerate(r_ohm):
+        alone = loop.run(exp, seed=0, overrides={**over, "motor.r_ohm": r}).log
+        member = batch.member(k)
+        trip = int(np.argmax(member.fault != 0))
+        assert member.fault[trip] == Fault.BUS_OVER_VOLTAGE
+        shorts.append(trip + 2 + int(np.argmax(np.abs(member.current_a[trip + 2 :]) > 0.0)))
+        for name, column in member.items():
+            if not name.startswith("sp_"):  # (the batch's one setpoint holds member 0's stop)
+                assert np.array_equal(column, getattr(alone, name)), (r, name)
+    assert shorts[0] != shorts[1]
