@@ -155,6 +155,8 @@ COMMAND_MASK = sum(1 << int(cls.MSG_TYPE) for cls in COMMAND_TYPES)
 _COMMAND_CLASSES = frozenset(COMMAND_TYPES)
 # A refusal: (code, refused field name or None, limit in the field's unit).
 _Refusal = tuple[NackCode, str | None, float]
+# The faults whose reaction is the bridge off at once, without the brake (_trip).
+_NO_BRAKE = frozenset({Fault.OVER_CURRENT, Fault.SENSE_OFFSET, Fault.CALIBRATION_MOTION})
 # A command answered later (a SetEnable calibrating the IS offset), by _apply's handlers.
 _PENDING: Any = object()
 # link_status: the heartbeat's wire values as the PC decodes them.
@@ -684,10 +686,10 @@ class Firmware:
     def _calibration_done(self) -> None:
         """The members whose calibration ended this period (``calibration_step`` said so):
         keep the offsets of those that passed (``C_SENSE_OFFSET_A`` / ``_B``, one per IS pin),
-        disable the others, and answer the ``SetEnable`` once no member calibrates any
-        more: ACK if one passed, else
-        NACK ``BUSY`` (the axis turned; limit: the speed bound in deg/s) or ``SENSE_OFFSET``
-        (the offset implausible; limit: the ceiling, A)."""
+        latch a fault on the others (``_calibration_failed``), and answer the ``SetEnable``
+        once no member calibrates any more: ACK if one passed, else NACK ``BUSY`` (the axis
+        turned; limit: the speed bound in deg/s) or ``SENSE_OFFSET`` (an offset implausible;
+        limit: the ceiling, A)."""
         c = self.law.C
         done = self._calibrating & (c[C_CAL_LEFT] == 0)
         if not done.any():
@@ -700,15 +702,8 @@ class Firmware:
         good = done & (reason == 0)
         c[C_SENSE_OFFSET_A, good] = offset_a[good]
         c[C_SENSE_OFFSET_B, good] = offset_b[good]
-        bad = done & (reason != 0)
         self._calibrating &= ~done
-        if bad.any():
-            self._enabled[bad] = False
-            self._flags_version += 1
-            self._enabled_s = bool(self._enabled[0])
-            self.law.reset_control(bad)
-            if not self._enabled.any():
-                self._hold_here()
+        self._calibration_failed(done & (reason != 0), reason, offset_a, offset_b)
         if self._calibrating.any():
             return
         first = int(np.flatnonzero(done)[0])
@@ -719,6 +714,38 @@ class Firmware:
         else:
             self._answer_enable(NackCode.SENSE_OFFSET,
                                 cur.sense_offset_max_counts * cur.a_per_adc)  # fmt: skip
+
+    def _calibration_failed(
+        self, bad: Any, reason: Any, offset_a: Any, offset_b: Any
+    ) -> None:
+        """A failed calibration is a latched fault (bridge off, no brake: the axis was held
+        at rest by the both-high-sides state; ``ClearFault`` then ``SetEnable`` to retry),
+        so that a member refused (one of a batch, or the axis after the ``SetEnable``'s
+        NACK) says why when asked later (``Status``, ``GetFault``, ``FaultReport``):
+
+        * ``SENSE_OFFSET``: a pin's offset above ``sense_offset_max_counts``; value the
+          larger pin's offset, threshold the ceiling (A of load current);
+        * ``CALIBRATION_MOTION``: the axis turned, in deg/s of the axis: abandoned on the
+          encoder's speed (value that speed, threshold ``sense_calibration_max_speed_dps``),
+          or the pins apart by more than ``sense_calibration_pin_counts`` (value the speed
+          whose back-EMF drives that loop current, ``dI R / K_e`` with the firmware's R and
+          K_e; threshold the same of the pin bound)."""
+        if not bad.any():
+            return
+        cur = self.params.current
+        a = cur.a_per_adc
+        c = self.law.C
+        high = bad & (reason == sense_calibration.IMPLAUSIBLE)
+        self._trip(high, Fault.SENSE_OFFSET, np.maximum(offset_a, offset_b) * a,
+                   cur.sense_offset_max_counts * a)  # fmt: skip
+        moved = bad & (reason == sense_calibration.MOVED)
+        abandoned = moved & (c[C_CAL_SUM_A] < 0)
+        self._trip(abandoned, Fault.CALIBRATION_MOTION, np.abs(self.law.vel_dps),
+                   cur.sense_calibration_max_speed_dps)  # fmt: skip
+        dps_per_count = a * self._r_ohm / self._emf_v_per_dps
+        apart = np.abs(offset_a - offset_b) * dps_per_count
+        self._trip(moved & ~abandoned, Fault.CALIBRATION_MOTION, apart,
+                   float(cur.sense_calibration_pin_counts * dps_per_count[0]))  # fmt: skip
 
     def _answer_enable(self, code: NackCode | None = None, limit: float = 0.0) -> None:
         """The answer of the ``SetEnable`` that started the calibration (none for the
@@ -875,9 +902,10 @@ class Firmware:
         self._counts["faults"] += hits
         self._counts[f"fault_{fault.name}"] += hits
         self.law.reset_control(mask)
-        if fault is not Fault.OVER_CURRENT and self._brake_ticks_setting:
+        if fault not in _NO_BRAKE and self._brake_ticks_setting:
             # The fault reaction: dynamic braking (both low sides on, duty 0) for brake_s,
-            # then the bridge off. An over-current (a short, perhaps) turns it off at once.
+            # then the bridge off. An over-current (a short, perhaps) turns it off at once,
+            # as a failed IS-offset calibration does (the axis was held, never driven).
             self._brake_ticks[mask] = self._brake_ticks_setting
         if mask[0]:
             v = float(value) if np.ndim(value) == 0 else float(np.asarray(value)[0])

@@ -236,6 +236,8 @@ class Fault(IntEnum):
     THERMAL = 10  # the firmware's estimate of the winding temperature above its trip
     BUS_OVER_VOLTAGE = 11  # the measured bus above [safety] bus_over_voltage_v
     BUS_UNDER_VOLTAGE = 12  # the measured bus below [safety] bus_under_voltage_v
+    SENSE_OFFSET = 13  # the IS offset calibrated at enable above the chip's maximum
+    CALIBRATION_MOTION = 14  # the axis turned during the IS-offset calibration at enable
 
 
 class FaultFlag(IntFlag):
@@ -250,9 +252,11 @@ class FaultFlag(IntFlag):
     THERMAL = 1 << 2  # power stage: the winding temperature estimate above its trip
     BUS_OVER_VOLTAGE = 1 << 3  # power stage: the measured bus voltage too high
     BUS_UNDER_VOLTAGE = 1 << 4  # power stage: the measured bus voltage too low
+    SENSE_OFFSET = 1 << 5  # power stage: an IS pin's offset implausible (calibration at enable)
     FOLLOWING_ERROR = 1 << 8  # motion: |setpoint - position| above following_error_deg
     OVER_SPEED = 1 << 9  # motion: |velocity| above over_speed_dps
     TRAVEL = 1 << 10  # motion: position outside the travel limits
+    CALIBRATION_MOTION = 1 << 11  # motion: the axis turned during the IS-offset calibration
     ENCODER = 1 << 16  # sensor: implausible jump or stuck reading
     ENCODER_DIAG = 1 << 17  # sensor: the AS5048 reports an error
     SENSOR_MISMATCH = 1 << 18  # sensor: the encoder disagrees with the back-EMF
@@ -273,6 +277,8 @@ FAULT_FLAG: dict[Fault, FaultFlag] = {
     Fault.THERMAL: FaultFlag.THERMAL,
     Fault.BUS_OVER_VOLTAGE: FaultFlag.BUS_OVER_VOLTAGE,
     Fault.BUS_UNDER_VOLTAGE: FaultFlag.BUS_UNDER_VOLTAGE,
+    Fault.SENSE_OFFSET: FaultFlag.SENSE_OFFSET,
+    Fault.CALIBRATION_MOTION: FaultFlag.CALIBRATION_MOTION,
 }
 
 

@@ -16,7 +16,19 @@ from firmware_model.sense_calibration import IMPLAUSIBLE, MOVED, judge
 from firmware_model.tick import FS_MM_OFFSET_A
 from serial_protocol import frame
 from serial_protocol.host import BoardClient
-from serial_protocol.messages import Ack, Hello, Move, Nack, NackCode, Profile, SetEnable, State
+from serial_protocol.messages import (
+    Ack,
+    Fault,
+    FaultFlag,
+    FaultReport,
+    Hello,
+    Move,
+    Nack,
+    NackCode,
+    Profile,
+    SetEnable,
+    State,
+)
 from sim import loop
 from sim.bridge import N_PW, PW_OFFSET, PW_OFFSET_NEG, apply_bridge, pwm_sense_table, read_adc
 from sim.config import load_bench
@@ -257,6 +269,77 @@ def test_a_turning_axis_is_refused():
     assert isinstance(reply, Nack) and reply.code is NackCode.BUSY
     assert reply.limit == pytest.approx(1.0)
     assert sim.fw.state == State.DISABLED and sim.fw.law.C[C_CAL_LEFT, 0] == 0
+    # Refused at the command (before any calibration): not a fault, a "not now".
+    assert client.status().fault is Fault.NONE
+
+
+def _fault_reports(sim):
+    return [m for m in frame.Decoder().feed(sim.pc_read()) if isinstance(m, FaultReport)]
+
+
+def test_a_failed_calibration_latches_a_fault_the_pc_can_read_later():
+    # N = 1: the SetEnable is NACKed as before, and the board says why when asked later:
+    # Status.fault / fault_flags, GetFault (value, threshold), a FaultReport. ClearFault
+    # then SetEnable tries again.
+    sim = _sim(**{"servo.start_enabled": False, "current_sense.is_offset_ua": 300.0})
+    client = BoardClient(SimulatedLink(sim, ticks_per_poll=1), ack_timeout_s=30.0)
+    client.hello()
+    reply = client.set_enable(True)
+    assert isinstance(reply, Nack) and reply.code is NackCode.SENSE_OFFSET
+    sim.step(300)  # no brake: the bridge stays off
+    assert np.all(sim.log().voltage_v[-300:] == 0.0) and np.all(sim.log().duty[-300:] == 0.0)
+    status = client.status()
+    assert status.state is State.FAULT and status.fault is Fault.SENSE_OFFSET
+    assert status.fault_flags == FaultFlag.SENSE_OFFSET == 1 << 5
+    info = client.get_fault(5)
+    assert info.latched
+    assert info.value == pytest.approx(_counts(300e-6 * 8500.0) * A_PER_LSB, rel=1e-6)
+    assert info.threshold == pytest.approx(248 * A_PER_LSB, rel=1e-6)
+    assert isinstance(client.set_enable(True), Nack)  # FAULT_ACTIVE until cleared
+    assert isinstance(client.clear_fault(), Ack)
+    assert client.status().state is State.DISABLED
+    assert isinstance(client.set_enable(True), Nack)  # the pin is still bad: again
+    assert client.status().fault is Fault.SENSE_OFFSET
+
+
+def test_an_axis_turning_during_the_calibration_latches_calibration_motion():
+    # The axis starts turning after the SetEnable was accepted (pushed: a torque on it);
+    # the encoder sees it: abandoned, CALIBRATION_MOTION with the speed in deg/s.
+    sim = _sim(**{"servo.start_enabled": False})
+    sim.pc_write(frame.encode(Hello(cmd_id=1, session=2), 0))
+    sim.step(3)
+    sim.pc_write(frame.encode(SetEnable(cmd_id=2, enable=True, session=2), 1))
+    sim.step(6)
+    assert sim.fw.law.C[C_CAL_LEFT, 0] > 0
+    sim._x[0, 2] = 100.0  # ~72 deg/s at the axis
+    sim.step(20)
+    assert sim.fw.state == State.FAULT
+    (report,) = _fault_reports(sim)
+    assert report.fault is Fault.CALIBRATION_MOTION
+    assert report.fault_flags == FaultFlag.CALIBRATION_MOTION == 1 << 11
+    assert report.value > 1.0 and report.threshold == pytest.approx(1.0)
+
+
+def test_a_batch_member_whose_calibration_fails_has_its_fault_code():
+    # Before: the member stayed DISABLED with no fault code; the others enable.
+    sim = Simulation(
+        load_bench(BENCH), batch=3, seed=3,
+        overrides={**CAL, "current_sense.is_offset_ua": [50.0, 300.0, 0.0]},
+    )  # fmt: skip
+    sim.step(40)
+    np.testing.assert_array_equal(sim.fw.fault, [0, Fault.SENSE_OFFSET, 0])
+    np.testing.assert_array_equal(sim.fw.state, [State.IDLE, State.FAULT, State.IDLE])
+    log = sim.log()
+    assert log.fault[1, -1] == Fault.SENSE_OFFSET and log.fault[0, -1] == 0
+    # the pins apart by more than the bound (set low): CALIBRATION_MOTION, in deg/s
+    sim = Simulation(
+        load_bench(BENCH), batch=2, seed=3,
+        overrides={**CAL, "current_sense.is_offset_ua": 50.0,
+                   "current_sense.is_offset_mismatch_ua": [0.0, 40.0],
+                   "controller.current.sense_calibration_pin_counts": 8},
+    )  # fmt: skip
+    sim.step(40)
+    np.testing.assert_array_equal(sim.fw.fault, [0, Fault.CALIBRATION_MOTION])
 
 
 def test_an_implausible_offset_is_refused():
@@ -268,7 +351,7 @@ def test_an_implausible_offset_is_refused():
     assert isinstance(reply, Nack) and reply.code is NackCode.SENSE_OFFSET
     assert reply.limit == pytest.approx(248 * A_PER_LSB, rel=1e-6)
     sim.step(20)
-    assert sim.fw.state == State.DISABLED
+    assert sim.fw.state == State.FAULT  # SENSE_OFFSET latched (below)
     assert np.all(sim.log().voltage_v[-10:] == 0.0)
 
 
