@@ -384,6 +384,7 @@ class Firmware:
         )
         fs[ftick.FS_MM_OFFSET_A] = offset_counts * params.current.a_per_adc
         fs[ftick.FS_MM_R_SPREAD] = s.sensor_mismatch_r_spread
+        fs[ftick.FS_MM_RESTART_W] = fs[ftick.FS_MM_RESTART_H] = s.sensor_mismatch_restart_rise_k
         fs[ftick.FS_BUS_V_PER_COUNT] = v_per_count
         fs[ftick.FS_BRAKE_CAP] = s.brake_current_limit_a
         self._prof = np.zeros((0, 5))

@@ -396,6 +396,11 @@ class SafetyParams(_Checked):
             docs/model.md "Safety"), the winding's resistance within
             ``resistance_ohm * (1 ±`` the spread), raised by the thermal protection's
             estimated rise since power-up when that is on.
+        sensor_mismatch_restart_rise_k: with the thermal protection on, how much warmer
+            than its assumed ambient the motor may have been at power-up (a warm restart
+            the estimate cannot see), in K of winding and housing; the check's upper R
+            end takes the estimate plus that excess as it decays through the protection's
+            own network (``firmware_model.tick.servo_stage``). 0: none.
         encoder_diag_ticks: the AS5048 reports an error (SPI parity, EF, CORDIC overflow,
             magnetic field out of range, offset compensation not finished) this many ticks
             in a row.
@@ -470,6 +475,7 @@ class SafetyParams(_Checked):
     sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))
     sensor_mismatch_calibrated_offset_counts: int = _f(62, _irng(0, 4095))
     sensor_mismatch_r_spread: float = _f(0.3, _rng(0.0, 0.99))
+    sensor_mismatch_restart_rise_k: float = _f(0.0, _rng(0.0, 300.0))
     bus_voltage_check: bool = _f(False, _boolean)
     bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))
     bus_under_voltage_v: float = _f(18.0, _rng(0.0, 100.0))

@@ -36,7 +36,14 @@ from firmware_model.laws.layout import (
     P_VREF,
 )  # fmt: skip
 from firmware_model.sense_calibration import calibration_step
-from firmware_model.thermal import N_TP, TP_ALPHA, TP_AMBIENT_C, TP_ON, thermal_protection
+from firmware_model.thermal import (
+    N_TP,
+    TP_ALPHA,
+    TP_AMBIENT_C,
+    TP_ON,
+    network_advance,
+    thermal_protection,
+)
 from serial_protocol import frame
 from serial_protocol.messages import BoardHeartbeat, State, Telemetry
 
@@ -53,9 +60,9 @@ __all__ = [
     FS_PROF_P0, FS_PROF_V0, FS_PROF_P1, FS_PROF_V1, FS_POS_LO, FS_POS_HI, FS_TRAVEL_MIN,
     FS_TRAVEL_MAX, FS_EDGE_DECEL, FS_SUPPLY_V, FS_MM_WINDOW, FS_MM_TOL, FS_MM_RATIO, FS_MM_DEG,
     FS_MM_V_PER_BUS, FS_MM_SENSE_SPREAD, FS_MM_OFFSET_A, FS_MM_R_SPREAD, FS_BUS_V_PER_COUNT,
-    FS_BRAKE_CAP,
-) = range(34)  # fmt: skip
-N_FS = 34
+    FS_BRAKE_CAP, FS_MM_RESTART_W, FS_MM_RESTART_H,
+) = range(36)  # fmt: skip
+N_FS = 36
 # FS_BUS_V_PER_COUNT: volts per count of the bus reading (what BoardHeartbeat reports).
 # FS_BRAKE_CAP: the fault reaction's brake current cap (A; 0 = none: the full short).
 # The thermal protection's block at the end of fs (Firmware sizes fs to hold it):
@@ -66,6 +73,9 @@ FS_THERMAL = N_FS
 # FS_MM_V_PER_BUS: volts per count of the bus reading for the back-EMF check, 0 = it takes
 # the configured supply voltage (FS_SUPPLY_V). FS_MM_SENSE_SPREAD, _OFFSET_A, _R_SPREAD: what
 # the check does not know of its current reading's gain and offset and of the winding's R.
+# FS_MM_RESTART_W / _H: the warm restart's excess over the thermal estimate the check still
+# allows for (K, winding and housing; [safety] sensor_mismatch_restart_rise_k at power-up),
+# decaying through the protection's network with no heat in (the same for every member).
 # fi: integers.
 (
     FI_TICK, FI_MODE, FI_MOVING, FI_MOVED, FI_SEQ, FI_DECIMATION, FI_LAST_RX, FI_WATCHDOG,
@@ -161,14 +171,23 @@ def servo_stage(P, C, S, G, K, fs, fi, enabled, prof, sf):
     )
     # The duty applied in the last current period, the current it measured, the encoder's
     # speed: the check needs no law step of this tick.
-    # R's rise with the thermal protection's winding estimate (none when it is off).
-    alpha = fs[FS_THERMAL + TP_ALPHA] if fs[FS_THERMAL + TP_ON] != 0.0 else 0.0
+    # R's rise with the thermal protection's winding estimate (none when it is off), plus
+    # what a warm restart may still add to it: the rise is counted from the ambient less
+    # that excess, which decays as the motor would cool (a linear network: the truth is the
+    # estimate plus the initial excess's free response).
+    alpha, rise_from_c = 0.0, fs[FS_THERMAL + TP_AMBIENT_C]
+    if fs[FS_THERMAL + TP_ON] != 0.0:
+        alpha = fs[FS_THERMAL + TP_ALPHA]
+        rise_from_c -= fs[FS_MM_RESTART_W]
+        fs[FS_MM_RESTART_W], fs[FS_MM_RESTART_H] = network_advance(
+            fs[FS_MM_RESTART_W], fs[FS_MM_RESTART_H], 0.0, 0.0, 0.0, fs, FS_THERMAL
+        )
     worst = safety.sensor_mismatch_step(
         P[P_DUTY], P[P_IMEAS], P[P_VEL], enabled, fs[FS_SUPPLY_V], sf[SF_R], sf[SF_EMF],
         fs[FS_DT], fs[FS_MM_WINDOW], fs[FS_MM_TOL], fs[FS_MM_RATIO], fs[FS_MM_DEG] / 3.0,
         mismatch, C[C_BUS_ADC], fs[FS_MM_V_PER_BUS], K[K_BUS_HOLD], fs[FS_MM_SENSE_SPREAD],
         fs[FS_MM_OFFSET_A], fs[FS_MM_R_SPREAD], fs[FS_THERMAL + N_TP :: 2], alpha,
-        fs[FS_THERMAL + TP_AMBIENT_C],
+        rise_from_c,
     )  # fmt: skip
     sensor = worst > fs[FS_MM_DEG]
     peak = sf[SF_PEAK]

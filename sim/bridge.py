@@ -36,8 +36,8 @@ from firmware_model.kernel_cache import kernel
 from sim.params import BridgeParams, CurrentSenseParams
 
 __all__ = [
-    "adc_counts", "apply_bridge", "pwm_sense_table", "quantise_duty", "read_adc",
-    "sensed_current_a", "switching", "switching_table",
+    "adc_counts", "apply_bridge", "inject_sense_fault", "pwm_sense_table", "quantise_duty",
+    "read_adc", "sensed_current_a", "switching", "switching_table",
 ]  # fmt: skip
 
 I_A = 0  # the current in a plant state (sim.plant)
@@ -100,9 +100,12 @@ def switching(x, supply_v, shifts, d_out, sense_sign, volt):
 # read_adc's ``pwm[2]`` columns: the IS offset of the pin of the half-bridge driving positive
 # current (A of load current), the sample point, the ripple factor 1 / (L f_pwm) (A per V),
 # the settling time and the pin's RC time constant over the PWM period, the other pin's
-# offset (A).
-PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE, PW_TAU, PW_OFFSET_NEG = range(6)
-N_PW = 6
+# offset (A); an injected sense fault (``SENSE_FAULTS``' code, 0 none) and the count a stuck
+# reading holds (-1: the next reading's).
+PW_OFFSET, PW_SAMPLE, PW_RIPPLE, PW_SETTLE, PW_TAU, PW_OFFSET_NEG, PW_FAULT, PW_HELD = range(8)
+N_PW = 8
+#: The sense faults ``inject_sense_fault`` can put on a member's IS reading.
+SENSE_FAULTS = {"clear": 0.0, "short": 1.0, "stuck": 2.0}
 
 
 def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n: int) -> Any:
@@ -124,6 +127,26 @@ def pwm_sense_table(sense: CurrentSenseParams, bridge: BridgeParams, l_h: Any, n
     table[:, PW_RIPPLE] = 1.0 / (np.asarray(l_h) * bridge.pwm_hz)
     table[:, PW_SETTLE] = np.asarray(sense.is_settling_us) * 1e-6 * bridge.pwm_hz
     table[:, PW_TAU] = np.asarray(sense.is_filter_us) * 1e-6 * bridge.pwm_hz
+    table[:, PW_FAULT], table[:, PW_HELD] = 0.0, -1.0
+    return table
+
+
+def inject_sense_fault(table: Any, n: int, kind: str, members: Any = None) -> Any:
+    """``table`` (``pwm_sense_table``'s) with a fault on the IS reading of ``members`` (all
+    if None): ``"short"`` the pin (or its sense resistor) shorted to ground, the ADC reads
+    0 V (plus its noise); ``"stuck"`` the reading frozen at the count of the next period;
+    ``"clear"`` none. An empty (averaged-sense) table becomes the equivalent full one (the
+    sample point 1/2, no offset, settling or RC: the same readings, bit for bit)."""
+    if kind not in SENSE_FAULTS:
+        raise ValueError(f"sense fault {kind!r}: expected one of {', '.join(SENSE_FAULTS)}")
+    if table.shape[0] == 0:
+        table = np.zeros((n, N_PW))
+        table[:, PW_SAMPLE], table[:, PW_HELD] = 0.5, -1.0
+    else:
+        table = table.copy()
+    rows = slice(None) if members is None else members
+    table[rows, PW_FAULT] = SENSE_FAULTS[kind]
+    table[rows, PW_HELD] = -1.0
     return table
 
 
@@ -183,6 +206,8 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
                 if tau > 0.0:
                     settle = table[j, PW_SETTLE]
                     c = c * rc_factor(s * d - settle, d - settle, tau)
+        if fine and table[j, PW_FAULT] == 1.0:
+            c = 0.0  # an injected short: 0 V at the ADC
         c = c / a_per_lsb[j] + 0.5
         if noisy:
             c = c + noise_lsb[j] * draw[j]
@@ -192,6 +217,10 @@ def read_adc(x, sense_sign, a_per_lsb, noise_lsb, draw, adc_full, out, pwm):
         if c < 0.0:
             c = 0.0
         out[j] = np.int64(c)
+        if fine and table[j, PW_FAULT] == 2.0:  # an injected stuck reading
+            if table[j, PW_HELD] < 0.0:
+                table[j, PW_HELD] = c
+            out[j] = np.int64(table[j, PW_HELD])
 
 
 @kernel

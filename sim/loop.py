@@ -42,7 +42,14 @@ from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Hello, Telemetry
 from serial_protocol.uart import EmulatedUart, FaultInjection, bytes_per_s
 from sim import tick as st
-from sim.bridge import apply_bridge, pwm_sense_table, read_adc, switching, switching_table
+from sim.bridge import (
+    apply_bridge,
+    inject_sense_fault,
+    pwm_sense_table,
+    read_adc,
+    switching,
+    switching_table,
+)
 from sim.config import TABLES, BenchConfig, Experiment, check_bench
 from sim.encoder import BLOCK, Encoder
 from sim.params import PlantParams, UartParams, per_member
@@ -456,6 +463,11 @@ class Simulation:
         if not self._record_inputs:
             raise ValueError("record_inputs = False: construct the Simulation with True")
         return np.array(self._states).reshape(-1, self.n, 5)
+
+    def inject_sense(self, kind: str, members: Any = None) -> None:
+        """A fault on the IS reading from the next tick (``sim.bridge.inject_sense_fault``:
+        ``"short"``, ``"stuck"`` or ``"clear"``), for ``members`` (all if None)."""
+        self._sense_table = inject_sense_fault(self._sense_table, self.n, kind, members)
 
     def step(self, n_ticks: int = 1) -> None:
         """Advance ``n_ticks`` servo ticks."""

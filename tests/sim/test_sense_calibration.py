@@ -415,3 +415,27 @@ def test_the_compiled_tick_and_the_python_step_calibrate_alike(batch):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
     # within a count of the offset (at 0 the ADC clips the noise's negative half: reads high)
     assert np.all(np.abs(off_a - np.array([0, 31, 62] if batch else [62])) <= 1)
+
+
+def test_injected_sense_faults_short_and_stuck_the_reading():
+    # sim.bridge.inject_sense_fault: the averaged sense's empty table becomes the neutral
+    # full one (the same readings), then a short reads 0 V and a stuck pin holds the next
+    # reading; "clear" gives the reading back.
+    from sim.bridge import inject_sense_fault
+
+    x = np.zeros((3, 5))
+    x[:, 0] = [2.0, -1.5, 4.0]
+    sign = np.array([1.0, -1.0, 1.0])
+    table = inject_sense_fault(np.zeros((0, N_PW)), 3, "clear")
+    np.testing.assert_array_equal(_read(x, sign, table), _read(x, sign, np.zeros((0, N_PW))))
+    short = inject_sense_fault(table, 3, "short", [0])
+    np.testing.assert_array_equal(_read(x, sign, short), [0, _counts(1.5), _counts(4.0)])
+    stuck = inject_sense_fault(table, 3, "stuck")
+    first = _read(x, sign, stuck)
+    x[:, 0] = [3.0, -0.5, 1.0]
+    np.testing.assert_array_equal(_read(x, sign, stuck), first)
+    cleared = inject_sense_fault(stuck, 3, "clear")
+    want = [_counts(3.0), _counts(0.5), _counts(1.0)]
+    np.testing.assert_array_equal(_read(x, sign, cleared), want)
+    with pytest.raises(ValueError, match="open"):
+        inject_sense_fault(table, 3, "open")
