@@ -45,7 +45,10 @@ the report says so and the band figure marks it (it is not drawn inside the enve
 scale it would flatten).
 
 Noise: every member of a batch draws its own encoder noise, so ``noise_copies`` copies of
-the nominal member give the spread that the noise alone makes (the report's error bars).
+each member (every motor, gains and effect: :func:`more_copies`) give the spread that the
+noise alone makes: the one-at-a-time tables print each member's mean ± sd over its copies,
+the band tables the spread over motors of the per-motor means and, apart from it, the
+per-motor standard deviations (:func:`per_motor`).
 """
 
 from __future__ import annotations
@@ -926,6 +929,25 @@ def _band_table(b: BandResult, metrics: Sequence[str]) -> list[str]:
     return out + [""]
 
 
+def _noisiest(st: Study, metric: str, kinds: Sequence[str]) -> list[str]:
+    """One sentence: the motor of the band (no effect; gains ``kinds``; not tripped) whose
+    ``metric`` the noise moves most, with its realisations' mean ± sd and range."""
+    idx = [k for g in kinds for k in st.select(gains=g, effect=None, copy=0) if not tripped(st, k)]
+    spreads = {k: spread(st.values(metric, st.copies_of(k))) for k in idx}
+    spreads = {k: v for k, v in spreads.items() if not math.isnan(v[1])}
+    if not spreads:
+        return []
+    k = max(spreads, key=lambda j: spreads[j][1])
+    mean, sd, lo, hi = spreads[k]
+    m = st.members[k]
+    return [
+        f"Where the noise matters most: the {metric.split(' (')[0]} of {m.motor.label} with "
+        f"{m.gains} gains, {_cell(mean, 4)} ± {_cell(sd, 2)} ({_cell(lo, 4)}–{_cell(hi, 4)}) over "
+        f"its {len(st.copies_of(k))} realisations.",
+        "",
+    ]
+
+
 def _effects_everywhere_table(b: BandResult) -> list[str]:
     """Per effect, the overshoot over every motor (fixed and re-tuned): per-motor means
     over the noise realisations, and the noise's per-motor standard deviations."""
@@ -1029,6 +1051,7 @@ def report_lines(res: SensitivityResult, section: int = 8) -> list[str]:
         "",
     ]
     lines += _band_table(b, FIG6_METRICS)
+    lines += _noisiest(st, "overshoot (deg)", ("fixed", "model", b.retune))
     fixed = st.select(gains="fixed", effect=None, copy=0)
     retuned = st.select(gains=b.retune, effect=None, copy=0)
 

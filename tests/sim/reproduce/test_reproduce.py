@@ -376,6 +376,18 @@ def test_section_8_band_table_is_per_motor_means_and_their_noise(output):
     noise_max = float(over[1][k].split("(")[1].rstrip(")"))
     motor_lo, motor_hi = (float(x) for x in over[0][k].split("(")[1].split(")")[0].split("–"))
     assert 0.0 < noise_max < 0.01 * (motor_hi - motor_lo)
+    # ... and the sentence under the table names the motor whose overshoot it moves most
+    sds = {
+        k: statistics.stdev(st.values("overshoot (deg)", st.select(
+            motor=st.members[k].motor, gains=st.members[k].gains, effect=None)))
+        for k in st.select(effect=None, copy=0)
+        if not any(st.metrics[j]["fault code"] for j in st.select(
+            motor=st.members[k].motor, gains=st.members[k].gains, effect=None))
+    }  # fmt: skip
+    worst = st.members[max(sds, key=sds.get)]
+    assert f"the overshoot of {worst.motor.label} with {worst.gains} gains, " in section
+    largest = [float(r[k].split("(")[1].rstrip(")")) for r in rows if r[2] == "noise"]
+    assert max(sds.values()) == pytest.approx(max(largest), rel=6e-2)
 
 
 def test_every_run_is_a_batch_of_noise_realisations_and_copy_0_is_the_decoded_run(output):
