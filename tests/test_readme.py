@@ -149,3 +149,16 @@ def test_readme_command_is_accepted(line, argv, capsys):
         build_parser().parse_args(argv[1:])
     except SystemExit as exc:
         assert exc.code == 0, f"README.md line {line}: {argv}\n{capsys.readouterr().err}"
+
+
+def test_the_csv_columns_list_every_state_and_fault_code():
+    """README's CSV table names every `State` and `Fault` code the log's integer columns hold
+    (it went stale when THERMAL and the bus faults were added)."""
+    from serial_protocol.messages import Fault, State
+
+    text = README.read_text(encoding="utf-8")
+    for column, enum in (("state", State), ("fault", Fault)):
+        row = re.search(rf"^\| `{column}` \| code \| `{enum.__name__}`: (.*) \|$", text, re.M)
+        assert row, f"README.md: no `{column}` row in the CSV table"
+        listed = re.findall(r"(\d+) ([A-Z_]+)", row.group(1))
+        assert [(int(c), n) for c, n in listed] == [(int(m), m.name) for m in enum], column
