@@ -280,25 +280,57 @@ def zoh_ladder(key: int, co: Coefficients, h_s: float, levels: int) -> list[np.n
     return [eye + p[:N_X, :] for p in reversed(out)]
 
 
-# Matrices shared by every plant with the same coefficients and step (tests and benchmarks
-# build many plants): (coefficients, h_s, levels, key) -> rows per level.
-_LADDERS: dict[tuple[Coefficients, float, int, int], list[tuple[tuple[float, ...], ...]]] = {}
-_LADDERS_MAX = 2000
+class _ModeTables:
+    """The matrices of the modes met so far for one parameter set, step and ladder depth,
+    shared by every ``Plant`` with those (runs of a tuner or a study build many plants with
+    the same coefficients): a plant starts with every mode an earlier one loaded, so its
+    compiled step does not stop to ask for them (``Plant._load``); the numbers are the
+    same whichever plant computed them (``zoh_ladder``, ``affine``)."""
+
+    def __init__(self, levels: int) -> None:
+        self.rows: dict[int, int] = {}  # mode key -> row of phis / rates
+        self.phis = np.empty((0, levels + 1, N_X, N_X + 2))
+        self.rates = np.empty((0, 3, N_X + 2))
+
+    def row(self, key: int, co: Coefficients, h_s: float, levels: int) -> int:
+        """The row of mode ``key``, computed the first time."""
+        r = self.rows.get(key)
+        if r is None:
+            r = len(self.rows)
+            if r == self.phis.shape[0]:  # grow by doubling
+                grow = max(16, 2 * r)
+                phis = np.empty((grow,) + self.phis.shape[1:])
+                phis[:r] = self.phis[:r]
+                rates = np.empty((grow, 3, N_X + 2))
+                rates[:r] = self.rates[:r]
+                self.phis, self.rates = phis, rates
+            self.phis[r] = zoh_ladder(key, co, h_s, levels)
+            a, b, e = affine(key, co)
+            for j, q in enumerate((VEL, PVEL, I_A)):
+                self.rates[r, j, :N_X] = a[q]
+                self.rates[r, j, N_X] = b[q]
+                self.rates[r, j, N_X + 1] = e[q]
+            self.rows[key] = r
+            _MODE_TABLES_ROWS[0] += 1
+        return r
 
 
-def ladder_rows(
-    key: int, co: Coefficients, h_s: float, levels: int
-) -> list[tuple[tuple[float, ...], ...]]:
-    """``zoh_ladder`` as nested float tuples, memoised across plants."""
-    slot = (co, h_s, levels, key)
-    rows = _LADDERS.get(slot)
-    if rows is None:
-        if len(_LADDERS) >= _LADDERS_MAX:
-            _LADDERS.clear()  # bounded: ~26 kB per entry; plants keep their own copies
-        # tolist(): the same Python floats, ~10x faster than float() per element
-        rows = [tuple(map(tuple, mat.tolist())) for mat in zoh_ladder(key, co, h_s, levels)]
-        _LADDERS[slot] = rows
-    return rows
+# (coefficients, h_s, levels) -> their _ModeTables; bounded (~6 kB a mode at 20 levels).
+_MODE_TABLES: dict[tuple[Coefficients, float, int], _ModeTables] = {}
+_MODE_TABLES_ROWS = [0]
+_MODE_TABLES_MAX_ROWS = 8192
+
+
+def mode_tables(co: Coefficients, h_s: float, levels: int) -> _ModeTables:
+    """The shared ``_ModeTables`` of ``co`` (scalar coefficients) at step ``h_s``."""
+    slot = (co, h_s, levels)
+    tables = _MODE_TABLES.get(slot)
+    if tables is None:
+        if _MODE_TABLES_ROWS[0] >= _MODE_TABLES_MAX_ROWS:
+            _MODE_TABLES.clear()  # bounded; plants keep their own copies
+            _MODE_TABLES_ROWS[0] = 0
+        tables = _MODE_TABLES[slot] = _ModeTables(levels)
+    return tables
 
 
 def derivative(
@@ -490,6 +522,8 @@ class Plant:
         self.n_events = 0
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
+        for g in range(len(self._sets)):
+            self._preload(g)
 
     def phi(self, key: int, level: int = 0, member: int = 0) -> np.ndarray:
         """``Phi`` (5, 7) of mode ``key`` over ``h_s / 2**level`` for ``member``."""
@@ -517,26 +551,43 @@ class Plant:
             slots[:g] = self._slots
             self._consts, self._slots = consts, slots
         self._consts[g] = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s)
+        self._preload(g)
         return g
 
-    def _load(self, group: int, key: int) -> None:
-        """Put mode ``key``'s matrices (parameter set ``group``) into the step's tables."""
+    def _reserve(self, rows: int) -> None:
+        """Room for ``rows`` more modes in the tables (grown by doubling)."""
         row = self._n_loaded
-        if row == self._phis.shape[0]:  # grow by doubling
-            grow = max(16, 2 * row)
+        if row + rows > self._phis.shape[0]:
+            grow = max(16, 2 * row, row + rows)
             phis = np.empty((grow,) + self._phis.shape[1:])
             phis[:row] = self._phis[:row]
             rates = np.empty((grow, 3, N_X + 2))
             rates[:row] = self._rates[:row]
             self._phis, self._rates = phis, rates
-        co = self._sets[group]
-        for level, mat in enumerate(ladder_rows(key, co, self.h_s, self.event_levels)):
-            self._phis[row, level] = mat
-        a, b, e = affine(key, co)
-        for j, r in enumerate((VEL, PVEL, I_A)):
-            self._rates[row, j, :N_X] = a[r]
-            self._rates[row, j, N_X] = b[r]
-            self._rates[row, j, N_X + 1] = e[r]
+
+    def _preload(self, group: int) -> None:
+        """Every mode of parameter set ``group`` that an earlier plant with the same
+        coefficients loaded (``mode_tables``), into this plant's tables at once."""
+        shared = mode_tables(self._sets[group], self.h_s, self.event_levels)
+        keys = [k for k in shared.rows if self._slots[group, k] < 0]
+        if not keys:
+            return
+        src = np.array([shared.rows[k] for k in keys])
+        self._reserve(len(keys))
+        row = self._n_loaded
+        self._phis[row : row + len(keys)] = shared.phis[src]
+        self._rates[row : row + len(keys)] = shared.rates[src]
+        self._slots[group, keys] = np.arange(row, row + len(keys))
+        self._n_loaded = row + len(keys)
+
+    def _load(self, group: int, key: int) -> None:
+        """Put mode ``key``'s matrices (parameter set ``group``) into the step's tables."""
+        shared = mode_tables(self._sets[group], self.h_s, self.event_levels)
+        src = shared.row(key, self._sets[group], self.h_s, self.event_levels)
+        self._reserve(1)
+        row = self._n_loaded
+        self._phis[row] = shared.phis[src]
+        self._rates[row] = shared.rates[src]
         self._slots[group, key] = row
         self._n_loaded = row + 1
 

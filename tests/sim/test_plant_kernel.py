@@ -18,6 +18,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from sim import plant as sim_plant
 from sim import plant_kernel
 from sim.params import PlantParams
 from sim.plant import (
@@ -171,13 +172,40 @@ def test_a_fresh_plant_loads_modes_as_it_meets_them(duties, enable):
     warm = Plant(PlantParams(), 1, DT_S, event_levels=6)
     for key in range(warm._slots.shape[1]):
         warm._load(0, key)
+    # Forget the matrices plants share, or the cold plant would start with warm's modes.
+    sim_plant._MODE_TABLES.clear()
     cold = Plant(PlantParams(), 1, DT_S, event_levels=6)
+    assert cold._n_loaded == 0
     xw = xc = np.array([[2.0, 0.0, 30.0, 0.0, 0.0]])
     for d in duties:
         xw = warm.update(0.0, xw, (d, enable))
         xc = cold.update(0.0, xc, (d, enable))
         np.testing.assert_array_equal(xw, xc)
     assert 0 < cold._n_loaded <= len(duties) * (2 * 6 + 2)
+
+
+def test_plants_with_the_same_coefficients_share_the_modes_met():
+    # A second plant with the same coefficients starts with every mode the first loaded (its
+    # compiled step does not stop for them), the same numbers; other coefficients do not.
+    sim_plant._MODE_TABLES.clear()
+    first = Plant(PlantParams(), 1, DT_S)
+    x = np.array([[2.0, 0.0, 30.0, 0.0, 0.0]])
+    xs = [x]
+    for d in (0.5, -1.0, 0.0, 1.0):
+        xs.append(first.update(0.0, xs[-1], (d, True)))
+    assert first._n_loaded > 0
+    second = Plant(PlantParams(), 1, DT_S)
+    assert second._n_loaded == first._n_loaded
+    for key in np.flatnonzero(first._slots[0] >= 0):
+        np.testing.assert_array_equal(second.phi(key, 3), first.phi(key, 3))
+    assert second._n_loaded == first._n_loaded  # phi() found every mode loaded
+    y = x
+    for d, want in zip((0.5, -1.0, 0.0, 1.0), xs[1:], strict=True):
+        y = second.update(0.0, y, (d, True))
+        np.testing.assert_array_equal(y, want)
+    other = dataclasses.replace(PlantParams(), motor=dataclasses.replace(
+        PlantParams().motor, r_ohm=2 * PlantParams().motor.r_ohm))  # fmt: skip
+    assert Plant(other, 1, DT_S)._n_loaded == 0
 
 
 def test_consts_follow_the_coefficients():
