@@ -548,9 +548,7 @@ class Simulation:
         # N = 256) costs a few page faults instead of one per 4 kB written.
         block = cap * n * 8
         shared = cap * 8
-        buf = np.empty(
-            block * (len(fields) + len(PLANT_LOG)) + shared * len(self._shared), dtype=np.uint8
-        )
+        buf = _log_buffer(block * (len(fields) + len(PLANT_LOG)) + shared * len(self._shared))
         # The plant's columns first, as one (5, cap, N) array for the compiled tick.
         new = buf[: len(PLANT_LOG) * block].view(np.float64).reshape(len(PLANT_LOG), cap, n)
         new[:, : self._cap] = self._plog[:, : self._cap]
@@ -570,7 +568,7 @@ class Simulation:
 
     def _log_plant(self, k: int, x: np.ndarray) -> None:
         """Log row ``k`` of the plant's columns from states ``x`` (``(N, 5)``): the
-        compiled tick's arithmetic (``sim.tick.run_ticks``, ``TOP``), in numpy."""
+        compiled tick's arithmetic (``sim.tick._log_plant``), in numpy."""
         plog, (deg_axis, n_total, rad2deg) = self._plog, self._plant_consts
         pos = x[:, POS]
         plog[0, k] = pos * deg_axis
@@ -946,6 +944,36 @@ def run(
     # The simulation ends here: a batch log's buffers become the result's, without copies.
     log = sim._log(copy=False)
     return RunResult(log, sim.pc_read(), sim.link_stats(), exp, counters)
+
+
+# Log buffers (``Simulation._grow``) kept for the next run once no log views them: a fresh
+# allocation of a batch log is page faults and the kernel zeroing every page (N = 256, 2 s:
+# 28 MB, ~7,000 4 kB pages, or huge pages; glibc gives a freed block of that size back to the
+# system or keeps it, depending on its thresholds), a tuner's or a study's runs of one size
+# reuse one buffer instead. At most _POOL_KEEP buffers, each at most _POOL_MAX_BYTES.
+_POOL: list[np.ndarray] = []
+_POOL_LOCK = threading.Lock()
+_POOL_KEEP = 2
+_POOL_MAX_BYTES = 1 << 27
+
+
+def _log_buffer(size: int) -> np.ndarray:
+    """``size`` bytes (uint8) for a log: a view of a kept buffer that nothing views any more
+    (its reference count is the pool's alone: every log column is a view whose base is the
+    buffer), or a new buffer, kept for later if not too large."""
+    with _POOL_LOCK:  # another thread's Simulation must not take the same buffer
+        for k in range(len(_POOL)):
+            # The references: the list's and getrefcount's argument.
+            if _POOL[k].shape[0] >= size and sys.getrefcount(_POOL[k]) == 2:
+                return _POOL[k][:size]
+        buf = np.empty(size, dtype=np.uint8)
+        if size <= _POOL_MAX_BYTES:
+            if len(_POOL) >= _POOL_KEEP:
+                # Forget a free one first (a busy one is still some log's memory).
+                free = [k for k in range(len(_POOL)) if sys.getrefcount(_POOL[k]) == 2]
+                del _POOL[free[0] if free else 0]
+            _POOL.append(buf)
+        return buf
 
 
 # The arithmetics whose compiled tick this process has loaded.

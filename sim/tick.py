@@ -126,6 +126,21 @@ def _queued(ctx, fi, at, end):
     fi[FI_TX_BYTES] += end - at
 
 
+@kernel
+def _log_plant(plog, k, x, consts):
+    """Log row ``k`` of the plant's columns (``sim.loop.PLANT_LOG``, ``plog`` ``(5,
+    capacity, N)``) from the states ``x`` (``(N, 5)``), as the log shows them: ``consts``
+    ``(3, N)``: degrees per radian of the axis, the total ratio, degrees per radian
+    (``Simulation._log_plant``'s numpy arithmetic)."""
+    for j in range(x.shape[0]):
+        pos = x[j, 1]
+        plog[0, k, j] = pos * consts[0, j]
+        plog[1, k, j] = x[j, 2] * consts[0, j]
+        plog[2, k, j] = (pos / consts[1, j] - x[j, 3]) * consts[2, j]
+        plog[3, k, j] = pos
+        plog[4, k, j] = x[j, 0]
+
+
 # nogil: the rest of a block of encoder noise is drawn on a thread meanwhile (Encoder.refill).
 @kernel(nogil=True)
 def run_ticks(
@@ -158,7 +173,6 @@ def run_ticks(
     plog, signals, voltage, bus_log, winding_log, plant_consts = logs
     heat_on = heat[0].shape[0] > 0
     temps = heat[0]
-    deg_axis, n_total, rad2deg = plant_consts[0], plant_consts[1], plant_consts[2]
     # The log columns as locals: an array taken from a tuple inside the member loop would
     # cost a reference count increment and decrement per member and column.
     sig0, sig1, sig2, sig3, sig4, sig5, sig6, sig7, sig8, sig9, sig10 = signals
@@ -171,6 +185,10 @@ def run_ticks(
     no_draw = duty[:0]  # no noise draws (a view: the kernel allocates nothing)
     keep = flags[F_KEEP] != 0
     frame_bytes = flags[F_FRAME_BYTES]
+    # Without the bus model the bus ADC reads the supply's voltage: the same counts every
+    # period, read once a call (nothing else writes C_BUS_ADC in the compiled tick).
+    bus_fixed = bus_v.shape[0] == 0
+    bus_read = False
     tel_tables, hb_tables = tables
     while True:
         k = ctx[CX_K]
@@ -191,13 +209,7 @@ def run_ticks(
                 # Element loops, not slice assignments: those compile numba's shape-error
                 # formatting (a tenth of the whole compile time) for an error that cannot
                 # happen here.
-                for j in range(n):
-                    pos = x[j, 1]
-                    plog[0, k, j] = pos * deg_axis[j]
-                    plog[1, k, j] = x[j, 2] * deg_axis[j]
-                    plog[2, k, j] = (pos / n_total[j] - x[j, 3]) * rad2deg[j]
-                    plog[3, k, j] = pos
-                    plog[4, k, j] = x[j, 0]
+                _log_plant(plog, k, x, plant_consts)
                 # The bus voltage and the winding temperature where they change (else (0, N)).
                 if bus_log.shape[0]:
                     for j in range(n):
@@ -291,7 +303,9 @@ def run_ticks(
                     draw = adc_block[ctx[CX_ADC_ROW]]
                     ctx[CX_ADC_ROW] += 1
                 read_adc(x, sense_sign, a_per_lsb, adc_noise, draw, adc_full, adc, pwm)
-                read_bus_adc(bus, supply_v, adc_full, C[C_BUS_ADC])
+                if not (bus_fixed and bus_read):
+                    read_bus_adc(bus, supply_v, adc_full, C[C_BUS_ADC])
+                    bus_read = True
                 for j in range(n):
                     en_now[j] = enabled[j]
                 stage = BRIDGE

@@ -14,6 +14,7 @@ from scipy.integrate import solve_ivp
 from serial_protocol import frame
 from serial_protocol.exceptions import ConfigError
 from serial_protocol.messages import Hello, HelloReply, Move, State
+from sim import loop as sim_loop
 from sim.config import load_bench, load_experiment
 from sim.loop import LOG_FIELDS, Simulation, run
 from sim.plant import derivative
@@ -448,3 +449,27 @@ def test_shared_and_constant_log_columns_are_views_of_one_value(tmp_path):
     copy.sp_pos_deg[:] = 1.0  # a copy: writable, the simulation's log is unchanged
     copy.bus_v[:] = 1.0
     assert (sim.log().sp_pos_deg == 0.0).all() and (sim.log().bus_v == 24.0).all()
+
+
+def test_a_run_reuses_a_log_buffer_only_once_nothing_views_it(tmp_path):
+    # Runs of one size reuse the log memory of a finished run (sim.loop._log_buffer: no page
+    # faults, no zeroing), but never a log that is still held: the first run's log stays as
+    # it was while the second runs, and the two do not share memory.
+    exp = load_experiment(_experiment(tmp_path, MOVE.format(target=30.0), duration_s=0.3))
+    first = run(exp, batch=3, overrides={"motor.r_ohm": [1.0, 1.5, 2.0]})
+    before = {f: v.copy() for f, v in first.log.items()}
+    second = run(exp, batch=3)
+    for f, v in first.log.items():
+        assert not np.shares_memory(v, second.log.pos_deg)
+        np.testing.assert_array_equal(v, before[f])
+    assert not np.array_equal(first.log.current_a, second.log.current_a)  # other R, other run
+    # Dropped, its buffer serves the next run of that size: the same results as a fresh one.
+    # The buffers' addresses (no reference kept).
+    held = {r.log.pos_deg.base.ctypes.data for r in (first, second)}
+    want = {f: v.copy() for f, v in second.log.items()}
+    del first, second
+    third = run(exp, batch=3)
+    assert third.log.pos_deg.base.ctypes.data in held
+    assert any(third.log.pos_deg.base is b for b in sim_loop._POOL)
+    for f, v in third.log.items():
+        np.testing.assert_array_equal(v, want[f])
