@@ -868,6 +868,8 @@ class PerMotor:
     sds: list[float]
     undefined: int
     realisations: int
+    #: the most realisations any motor has the metric defined in (< 2: no noise spread)
+    most_defined: int = 0
 
     def over_motors(self) -> str:
         """``median (min–max)`` of the per-motor means, and the realisations left out."""
@@ -880,8 +882,9 @@ class PerMotor:
         return text
 
     def over_noise(self) -> str:
-        """``median (largest)`` of the per-motor standard deviations over the noise."""
-        if not self.sds:
+        """``median (largest)`` of the per-motor standard deviations over the noise ("-"
+        when no motor has two realisations to spread)."""
+        if not self.sds or self.most_defined < 2:
             return "-"
         return f"{_cell(float(np.median(self.sds)), 2)} ({_cell(max(self.sds), 2)})"
 
@@ -889,16 +892,18 @@ class PerMotor:
 def per_motor(st: Study, metric: str, idx: Sequence[int]) -> PerMotor:
     """``metric`` of the members ``idx`` (copy 0 of each; one per motor) over their noise
     realisations."""
-    means, sds, undefined, n = [], [], 0, 0
+    means, sds, undefined, n, most = [], [], 0, 0, 0
     for k in idx:
         vals = st.values(metric, st.copies_of(k))
         n += len(vals)
-        undefined += sum(math.isnan(v) for v in vals)
+        nan = sum(math.isnan(v) for v in vals)
+        undefined += nan
+        most = max(most, len(vals) - nan)
         mean, sd, _, _ = spread(vals)
         if not math.isnan(mean):
             means.append(mean)
             sds.append(sd)
-    return PerMotor(means, sds, undefined, n)
+    return PerMotor(means, sds, undefined, n, most)
 
 
 def _trips(st: Study, idx: Sequence[int]) -> tuple[list[int], str]:

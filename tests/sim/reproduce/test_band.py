@@ -264,6 +264,11 @@ def test_the_band_table_separates_the_spread_over_motors_from_the_noise():
     )
     assert got[("model", "noise")][1] == "0.71 (1.4)"
     assert got[("classic", "motors")][1] == "3 (3–3)" and got[("classic", "noise")][1] == "0 (0)"
+    # one realisation per motor: no spread over the noise to show (not "0")
+    single = {k: v[:1] for k, v in rows.items()}
+    lines = band._band_table(_synthetic_band(single), ["overshoot (deg)"])
+    noise = [ln for ln in lines if "| noise |" in ln]
+    assert len(noise) == 3 and all(ln.endswith("| - |") for ln in noise)
     # the effects table (full study): the same numbers per effect
     eff = "gearbox drag off"
     rows_e = {k: v for k, v in rows.items() if k[1] != "model"}
