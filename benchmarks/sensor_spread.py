@@ -16,7 +16,8 @@ pins the chosen setting's outcome (tests/firmware_model/test_sensor_spread.py).
 * Detection: a noisy (+-1 count) freeze of the encoder cruising at 30 / 60 / 100 / 130
   deg/s (benchmarks/sensor_check.py's); the IS pin shorted (the ADC reads 0 V) and stuck
   (its reading frozen) while cruising at 100 deg/s (3 s in); an open winding (R 1 kOhm)
-  from a move's start. Ticks from the fault to the first trip, which trip, the axis travel.
+  from a move's start; the freeze at 100 deg/s again in moves 10 / 30 / 60 min after
+  power-up. Ticks from the fault to the first trip, which trip, the axis travel.
 
     python3 benchmarks/sensor_spread.py [--only NAME ...] [--no-heat]
 """
@@ -42,22 +43,26 @@ from sim import loop  # noqa: E402
 from sim.reproduce.experiments import load, with_duration  # noqa: E402
 
 CAL = {"controller.current.sense_calibration": True}
+OFF = {"safety.sensor_mismatch_restart_rise_k": 0.0}  # no warm-restart allowance
+
+
+def _cal(counts: int, r_spread: float = 0.3, restart_k: float = 0.0) -> dict:
+    return {**CAL, "safety.sensor_mismatch_calibrated_offset_counts": counts,
+            "safety.sensor_mismatch_r_spread": r_spread,
+            "safety.sensor_mismatch_restart_rise_k": restart_k}  # fmt: skip
+
+
+# Offset allowance (counts), R spread, warm-restart allowance; the sense spread 0.65.
 SETTINGS = {
-    "uncalibrated, 62, 0.3 (default)": {},
-    "calibrated, 62, 0.3": {**CAL},
-    "calibrated, 2, 0.3": {**CAL, "safety.sensor_mismatch_calibrated_offset_counts": 2},
-    "calibrated, 2, 0.45": {**CAL, "safety.sensor_mismatch_calibrated_offset_counts": 2,
-                            "safety.sensor_mismatch_r_spread": 0.45},
-    "calibrated, 2, 0.5": {**CAL, "safety.sensor_mismatch_calibrated_offset_counts": 2,
-                           "safety.sensor_mismatch_r_spread": 0.5},
-    "calibrated, 2, 0.3, restart 80 K": {
-        **CAL, "safety.sensor_mismatch_calibrated_offset_counts": 2,
-        "safety.sensor_mismatch_restart_rise_k": 80.0},
-    "calibrated, 2, 0.3, restart 100 K": {
-        **CAL, "safety.sensor_mismatch_calibrated_offset_counts": 2,
-        "safety.sensor_mismatch_restart_rise_k": 100.0},
-    "uncalibrated, 62, 0.3, restart 80 K": {"safety.sensor_mismatch_restart_rise_k": 80.0},
-}  # fmt: skip
+    "uncalibrated, 62, 0.3 (the default before)": {**OFF},
+    "calibrated, 62, 0.3": _cal(62),
+    "calibrated, 2, 0.3": _cal(2),
+    "calibrated, 2, 0.45": _cal(2, 0.45),
+    "calibrated, 2, 0.5": _cal(2, 0.5),
+    "calibrated, 2, 0.3, restart 80 K (the default, calibrated)": _cal(2, 0.3, 80.0),
+    "calibrated, 2, 0.3, restart 100 K": _cal(2, 0.3, 100.0),
+    "uncalibrated, 62, 0.3, restart 80 K (the default)": {},
+}
 
 R_NOMINAL_OHM = 1.2  # bench_configs/paper_bench.toml [motor] r_ohm (at 20 degC)
 K_ILIS = (3000.0, 6000.0, 8500.0, 10000.0, 12000.0, 14000.0)
@@ -191,6 +196,21 @@ def detect(kind: str, overrides: dict, v_dps: float = 100.0, when: str = "cruise
             f"peak true current {np.abs(log.current_a[k0:k + 1]).max():.2f} A")  # fmt: skip
 
 
+def freeze_after_uptime(overrides: dict, minutes: float, v_dps: float = 100.0) -> str:
+    """The freeze of ``detect`` in a move that starts ``minutes`` after power-up (at rest
+    until then): the warm restart's allowance decays with the estimate's network."""
+    sim = loop.Simulation(paper_bench(**overrides), seed=3)
+    sim.pc_write(frame.encode(Hello(0, session=1), 0))
+    sim.step(round(minutes * 60 * 500) + 1)
+    sim.pc_write(frame.encode(Move(1, 30000.0, v_dps, 2000.0, 0.0, Profile.TRAPEZOID, 1), 1))
+    sim.step(1500)
+    k0 = sim.tick
+    sim.encoder.inject("freeze", x=sim.plant_state)
+    sim.step(1500)
+    rep = _first_report(sim)
+    return f"{rep.fault.name} after {rep.tick - k0} ticks" if rep else "no trip"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", action="append", default=[], help="a setting's name (repeat)")
@@ -214,6 +234,9 @@ def main() -> None:
                 for when in ("cruise", "rest"):
                     print("  " + detect(kind, over, when=when), flush=True)
             print("  " + detect("open winding", over), flush=True)
+            for minutes in (10.0, 30.0, 60.0):
+                print(f"  freeze (cruise, 100 deg/s) {minutes:g} min after power-up: "
+                      f"{freeze_after_uptime(over, minutes)}", flush=True)  # fmt: skip
     print(f"{time.perf_counter() - wall0:.0f} s wall, load {os.getloadavg()[0]:.1f}")
 
 

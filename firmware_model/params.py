@@ -390,17 +390,18 @@ class SafetyParams(_Checked):
             spread (0.65: the BTN7971's 3k-14k around 8.5k, no gain calibration), the IS
             reading's offset left after ``sense_offset_counts`` within ± this many counts
             (62: 50 uA through the 1 kOhm sense resistor; with ``[controller.current]
-            sense_calibration`` ``sensor_mismatch_calibrated_offset_counts`` instead: what
-            the calibration leaves is ~2 counts, but its default stays 62, because that
-            slack also covers a winding beyond the R spread, a part at +30 % restarted warm:
-            docs/model.md "Safety"), the winding's resistance within
-            ``resistance_ohm * (1 ±`` the spread), raised by the thermal protection's
-            estimated rise since power-up when that is on.
+            sense_calibration`` ``sensor_mismatch_calibrated_offset_counts`` instead, 2: what
+            the calibration leaves), the winding's resistance within ``resistance_ohm * (1
+            ±`` the spread) (0.3: a part's spread), raised by the thermal protection's
+            estimated rise since power-up when that is on, and by a warm restart's
+            (``sensor_mismatch_restart_rise_k``; docs/model.md "Safety", the decision).
         sensor_mismatch_restart_rise_k: with the thermal protection on, how much warmer
             than its assumed ambient the motor may have been at power-up (a warm restart
             the estimate cannot see), in K of winding and housing; the check's upper R
             end takes the estimate plus that excess as it decays through the protection's
-            own network (``firmware_model.tick.servo_stage``). 0: none.
+            own network (``firmware_model.tick.servo_stage``). 0: none. 80 by default: the
+            trip's 120 degC less the assumed 40 degC ambient, the hottest restart of a board
+            that stops at its trip.
         encoder_diag_ticks: the AS5048 reports an error (SPI parity, EF, CORDIC overflow,
             magnetic field out of range, offset compensation not finished) this many ticks
             in a row.
@@ -473,9 +474,9 @@ class SafetyParams(_Checked):
     sensor_mismatch_measured_bus: bool = _f(False, _boolean)
     sensor_mismatch_sense_spread: float = _f(0.65, _rng(0.0, 0.99))
     sensor_mismatch_offset_counts: int = _f(62, _irng(0, 4095))
-    sensor_mismatch_calibrated_offset_counts: int = _f(62, _irng(0, 4095))
+    sensor_mismatch_calibrated_offset_counts: int = _f(2, _irng(0, 4095))
     sensor_mismatch_r_spread: float = _f(0.3, _rng(0.0, 0.99))
-    sensor_mismatch_restart_rise_k: float = _f(0.0, _rng(0.0, 300.0))
+    sensor_mismatch_restart_rise_k: float = _f(80.0, _rng(0.0, 300.0))
     bus_voltage_check: bool = _f(False, _boolean)
     bus_over_voltage_v: float = _f(27.0, _rng(1.0, 100.0))
     bus_under_voltage_v: float = _f(18.0, _rng(0.0, 100.0))
