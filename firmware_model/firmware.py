@@ -716,9 +716,7 @@ class Firmware:
             self._answer_enable(NackCode.SENSE_OFFSET,
                                 cur.sense_offset_max_counts * cur.a_per_adc)  # fmt: skip
 
-    def _calibration_failed(
-        self, bad: Any, reason: Any, offset_a: Any, offset_b: Any
-    ) -> None:
+    def _calibration_failed(self, bad: Any, reason: Any, offset_a: Any, offset_b: Any) -> None:
         """A failed calibration is a latched fault (bridge off, no brake: the axis was held
         at rest by the both-high-sides state; ``ClearFault`` then ``SetEnable`` to retry),
         so that a member refused (one of a batch, or the axis after the ``SetEnable``'s
