@@ -558,6 +558,7 @@ def plot(band: BandResult, path: str | Path | None) -> Any:
             else "-"
         )
         colour = _COLOURS[kind]
+        bad_label = f"{len(bad)} motors that tripped (in some realisation)"
         for ax, col, shift in ((ax_v, "vel_dps", 0.0), (ax_p, "pos_deg", band.target_deg)):
             if ok:
                 y = st.column(col, ok) - shift
@@ -566,7 +567,7 @@ def plot(band: BandResult, path: str | Path | None) -> Any:
             for j, k in enumerate(bad):
                 ax.plot(
                     t, st.column(col, [k])[0] - shift, color=colour, lw=0.6, ls=":",
-                    label=f"{len(bad)} motors that tripped a fault" if j == 0 else None,
+                    label=bad_label if j == 0 else None,
                 )  # fmt: skip
     ax_p.plot(
         t, st.column("pos_deg", [nominal])[0] - band.target_deg, color="k", lw=0.8, ls="--",

@@ -296,3 +296,36 @@ def test_the_effects_table_names_the_faults_the_motors_tripped_with():
     st = SimpleNamespace(metrics=[{"fault code": float(c)} for c in codes])
     assert band._faults_by_name(st, [0, 1, 2, 3]) == " (OVER_CURRENT 2, THERMAL 1)"
     assert band._faults_by_name(st, [0]) == ""
+
+
+def test_the_band_figure_uses_the_per_motor_means_and_any_realisations_trip():
+    """fig6_band.png: the legend's overshoot range is over the per-motor means (as the
+    table's), and a motor that tripped in one realisation only is drawn apart (dotted)."""
+    from matplotlib.lines import Line2D
+
+    from serial_protocol.messages import Fault
+
+    oc = int(Fault.OVER_CURRENT)
+    a, b, d = band.Motor(r=0.7), band.Motor(kt=1.3), band.Motor()
+    rows = {
+        (d, "fixed"): [(40.0, 0), (44.0, 0)],  # mean 42
+        (a, "fixed"): [(10.0, 0), (14.0, 0)],  # mean 12
+        (b, "fixed"): [(100.0, 0), (0.0, oc)],  # tripped in copy 1 only
+        (d, "classic"): [(30.0, 0), (30.0, 0)],
+    }
+    res = _synthetic_band(rows)
+    st = res.study
+    t = np.linspace(0.0, 4.0, 9)
+    kept = tuple(k for k, m in enumerate(st.members) if m.copy == 0)
+    cols = {c: np.stack([t * (j + 1) for j in range(len(kept))]) for c in ("pos_deg", "vel_dps")}
+    st = dataclasses.replace(st, t_s=t, columns=cols, kept=kept)
+    fig = band.plot(dataclasses.replace(res, study=st), None)
+    labels = [ln.get_label() for ln in fig.get_axes()[1].get_lines()]
+    assert "fixed gains (firmware as configured): 2 motors, overshoot 12–42° (median 27°)" in labels
+    assert "1 motors that tripped (in some realisation)" in labels
+    # the tripped motor's own curve (realisation 0), dotted, outside the envelope
+    (line,) = [ln for ln in fig.get_axes()[1].get_lines() if "tripped" in ln.get_label()]
+    assert isinstance(line, Line2D) and line.get_linestyle() == ":"
+    assert np.array_equal(line.get_ydata(), cols["pos_deg"][kept.index(4)] - 3000.0)
+    with pytest.raises(KeyError, match="was not kept"):
+        st.column("pos_deg", [len(st.members) - 1])
