@@ -53,6 +53,7 @@ __all__ = [
 ]  # fmt: skip
 
 BLOCK = _BLOCK = 4096  # ticks of noise drawn at once (at most)
+_CHUNKS = 8  # refill's rest of a block is drawn on its thread in this many chunks
 #: The AGC value of the magnet at its nominal distance (assumed: mid-range).
 AGC_NOMINAL = 128
 #: Injectable faults (see the module docstring); the index is the member's fault code.
@@ -80,8 +81,9 @@ class Encoder:
         self._params: tuple[np.ndarray, ...] = ()
         self.block = np.empty((0, 0))
         self.row = 0
-        # refill's draw of the rest of a block into _full, on the drawing thread, if any.
-        self._rest: Future[np.ndarray] | None = None
+        # refill's draws of the rest of a block into _full, on the drawing thread, if any:
+        # (end row, its chunk's future), in order.
+        self._rest: list[tuple[int, Future[np.ndarray]]] | None = None
         self._full: np.ndarray | None = None
         self._fault = np.zeros(0, dtype=np.int64)  # per member: index into FAULT_KINDS
         self._frozen_counts = np.zeros(0)
@@ -159,15 +161,21 @@ class Encoder:
         caller whose ``rng`` feeds nothing else may draw only the ticks it will run.
 
         ``0 < head < rows``: only the first ``head`` rows are drawn here (``block`` holds
-        them) and the rest on a thread, into the same array, while the caller runs the
-        first ones (numpy draws without the GIL, the compiled tick runs without it: the
-        draws of a batch run take the second core); ``finish()`` waits for them. The same
-        numbers in the same order either way."""
+        them) and the rest on a thread, into the same array, in ``_CHUNKS`` chunks, while
+        the caller runs the first ones (numpy draws without the GIL, the compiled tick runs
+        without it: the draws of a batch run take the second core); ``more()`` extends
+        ``block`` by the chunks drawn so far, ``finish()`` waits for them all. The same
+        numbers in the same order either way (one thread draws the chunks one after the
+        other)."""
         self.finish()
         if 0 < head < rows:
             full = np.empty((rows, n))
             self.rng.standard_normal(out=full[:head])
-            self._rest = _drawer().submit(self.rng.standard_normal, out=full[head:])
+            draw, size = _drawer().submit, -(-(rows - head) // _CHUNKS)
+            self._rest = [
+                (min(at + size, rows), draw(self.rng.standard_normal, out=full[at : at + size]))
+                for at in range(head, rows, size)
+            ]
             self._full = full
             self.block = full[:head]
         else:
@@ -179,11 +187,29 @@ class Encoder:
         """Whether ``refill`` is still drawing the rest of the block on its thread."""
         return self._rest is not None
 
+    def more(self) -> None:
+        """Wait for the next chunk ``refill`` draws on its thread; ``block`` then holds every
+        row drawn so far (the rows it held before, unchanged, first)."""
+        rest = self._rest
+        if rest is None:
+            return
+        end, chunk = rest.pop(0)
+        chunk.result()
+        while rest and rest[0][1].done():
+            end, chunk = rest.pop(0)
+            chunk.result()
+        if rest:
+            self.block = self._full[:end]
+        else:
+            self._rest = None
+            self.block, self._full = self._full, None
+
     def finish(self) -> None:
         """Wait for the rows ``refill`` draws on a thread; ``block`` then holds them all
         (nothing else may draw from ``rng`` before: every user of it calls this first)."""
         if self._rest is not None:
-            self._rest.result()
+            for _, chunk in self._rest:
+                chunk.result()
             self._rest = None
             self.block, self._full = self._full, None
 
@@ -196,7 +222,7 @@ class Encoder:
         if self._noisy:
             if self.row == self.block.shape[0]:
                 if self.drawing:
-                    self.finish()
+                    self.more()
                 elif head:
                     self.refill(n, rows, head)
                 else:

@@ -601,11 +601,12 @@ class Simulation:
 
     def _head(self, rows: int) -> int:
         """Rows of a block of encoder noise to draw at once, the rest on a thread while the
-        compiled tick runs the first (``Encoder.refill``): an eighth of a large block of the
-        sole noise source (then nothing else draws from the generator meanwhile); 0 (all at
-        once) for a block too small to gain from it (N = 1: ~1,000 draws)."""
+        compiled tick runs the first (``Encoder.refill``: in chunks, the tick goes on as each
+        is drawn): a 32nd of a large block of the sole noise source (then nothing else draws
+        from the generator meanwhile); 0 (all at once) for a block too small to gain from it
+        (N = 1: ~1,000 draws)."""
         if self._sole_noise and rows * self.n >= 1 << 15:
-            return max(1, rows // 8)
+            return max(1, rows // 32)
         return 0
 
     def _run_compiled(self, n_ticks: int) -> None:
@@ -755,7 +756,7 @@ class Simulation:
                 if ctx[st.CX_STAGE] == st.TOP:
                     head = self._head(rows)
                     if enc.drawing:  # the rest of the block: drawn on refill's thread
-                        enc.finish()
+                        enc.more()
                     elif head:
                         enc.refill(n, rows, head)
                         ctx[st.CX_ENC_ROW] = 0
@@ -957,20 +958,32 @@ _POOL_KEEP = 2
 _POOL_MAX_BYTES = 1 << 27
 
 
+def _alone_count() -> int:
+    """``sys.getrefcount`` of a pooled buffer that only the pool holds (measured, not
+    assumed: an interpreter may count its own references differently), or -1 (never free:
+    no reuse) if a view does not show in the count."""
+    probe = [np.empty(8, dtype=np.uint8)]
+    alone = sys.getrefcount(probe[0])
+    view = probe[0][:4]
+    return alone if view.base is probe[0] and sys.getrefcount(probe[0]) > alone else -1
+
+
+_POOL_ALONE = _alone_count()
+
+
 def _log_buffer(size: int) -> np.ndarray:
     """``size`` bytes (uint8) for a log: a view of a kept buffer that nothing views any more
     (its reference count is the pool's alone: every log column is a view whose base is the
     buffer), or a new buffer, kept for later if not too large."""
     with _POOL_LOCK:  # another thread's Simulation must not take the same buffer
         for k in range(len(_POOL)):
-            # The references: the list's and getrefcount's argument.
-            if _POOL[k].shape[0] >= size and sys.getrefcount(_POOL[k]) == 2:
+            if _POOL[k].shape[0] >= size and sys.getrefcount(_POOL[k]) == _POOL_ALONE:
                 return _POOL[k][:size]
         buf = np.empty(size, dtype=np.uint8)
         if size <= _POOL_MAX_BYTES:
             if len(_POOL) >= _POOL_KEEP:
                 # Forget a free one first (a busy one is still some log's memory).
-                free = [k for k in range(len(_POOL)) if sys.getrefcount(_POOL[k]) == 2]
+                free = [k for k in range(len(_POOL)) if sys.getrefcount(_POOL[k]) == _POOL_ALONE]
                 del _POOL[free[0] if free else 0]
             _POOL.append(buf)
         return buf

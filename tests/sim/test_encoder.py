@@ -187,8 +187,8 @@ def _batch_run_digest(head: bool) -> str:
 
 
 def test_a_batch_runs_noise_drawn_on_the_thread_is_the_noise_drawn_at_once(monkeypatch):
-    # Encoder.refill's head: an eighth of the block at once, the rest on the drawing
-    # thread while the compiled tick runs; the same numbers in the same order.
+    # Encoder.refill's head: a 32nd of the block at once, the rest on the drawing
+    # thread, in chunks, while the compiled tick runs; the same numbers in the same order.
     from sim import encoder
 
     used = []
