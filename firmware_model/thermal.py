@@ -75,7 +75,9 @@ def steady_rise_k(p_w: float, p_h: float, r_wh_k_w: float, r_ha_k_w: float) -> t
 @kernel(error_model="numpy", inline="always")
 def network_advance(tw, th, p_w, p_h, t_a, net, at):
     """``(T_w, T_h)`` (degC) one step on from ``(tw, th)`` with the powers ``p_w``, ``p_h``
-    (W) and the ambient ``t_a`` held; ``net[at:at + N_NET]``: ``network_zoh``'s numbers."""
+    (W) and the ambient ``t_a`` held; ``net[at:at + N_NET]``: ``network_zoh``'s numbers
+    (an array, or a tuple of the ten: a loop's stores into the array would have the
+    compiled code read them again for every member)."""
     return (
         net[at] * tw + net[at + 1] * th + net[at + 4] * p_w + net[at + 5] * p_h
         + net[at + 6] * t_a,
@@ -154,21 +156,29 @@ def thermal_protection(
     trip). It knows nothing of the plant's temperatures."""
     lo, hi = fs[at + TP_DERATE_C], fs[at + TP_TRIP_C]
     depth = 1.0 - fs[at + TP_MIN_RATIO]
+    # The constants as locals: the loop writes the estimate into fs, so the compiled code
+    # would read each of them again for every member (it cannot tell the indices apart).
+    alpha, ref_c, ambient_c = fs[at + TP_ALPHA], fs[at + TP_REF_C], fs[at + TP_AMBIENT_C]
+    no_load_a, magnet = fs[at + TP_NO_LOAD_A], fs[at + TP_MAGNET]
+    ff_r, ff_emf = fs[at + TP_FF_R] != 0.0, fs[at + TP_FF_EMF] != 0.0
+    # The network's step too (a tuple: network_advance reads it at 0 on).
+    net = (
+        fs[at], fs[at + 1], fs[at + 2], fs[at + 3], fs[at + 4], fs[at + 5], fs[at + 6],
+        fs[at + 7], fs[at + 8], fs[at + 9],
+    )  # fmt: skip
     hit = False
     for j in range(derate.shape[0]):
         w = at + N_TP + 2 * j
         i = i_meas_a[j]
-        r = r_ohm[j] * (1.0 + fs[at + TP_ALPHA] * (fs[w] - fs[at + TP_REF_C]))
-        p_h = fs[at + TP_NO_LOAD_A] * abs(vel_dps[j] * emf_v_per_dps[j])
-        fs[w], fs[w + 1] = network_advance(
-            fs[w], fs[w + 1], i * i * r, p_h, fs[at + TP_AMBIENT_C], fs, at
-        )
+        r = r_ohm[j] * (1.0 + alpha * (fs[w] - ref_c))
+        p_h = no_load_a * abs(vel_dps[j] * emf_v_per_dps[j])
+        fs[w], fs[w + 1] = network_advance(fs[w], fs[w + 1], i * i * r, p_h, ambient_c, net, 0)
         t_w = fs[w]
-        if fs[at + TP_FF_R] != 0.0:
-            up = fs[at + TP_ALPHA] * (t_w - fs[at + TP_AMBIENT_C])
+        if ff_r:
+            up = alpha * (t_w - ambient_c)
             rise[j] = min(max(up, R_RISE_MIN), R_RISE_MAX)
-        if fs[at + TP_FF_EMF] != 0.0:
-            up = fs[at + TP_MAGNET] * (t_w - fs[at + TP_AMBIENT_C])
+        if ff_emf:
+            up = magnet * (t_w - ambient_c)
             emf_rise[j] = min(max(up, EMF_RISE_MIN), EMF_RISE_MAX)
         if t_w <= lo:
             derate[j] = 0.0

@@ -210,6 +210,8 @@ def current(adc, enabled, P, C, S, G, K):
     ref_row = S_REF_PIPE + ref_i
     a_per_adc, sense_floor, u_lim = K[K_A_PER_ADC], K[K_SENSE_FLOOR], K[K_U_LIM]
     supply_v, arr, i_limit_a = K[K_SUPPLY_V], K[K_ARR], K[K_I_LIMIT_A]
+    # Read once a period: K is an array the loop's stores might alias for the compiler.
+    bus_hold, bus_comp = K[K_BUS_HOLD], K[K_BUS_COMP] != 0.0
     for j in range(adc.shape[0]):
         applied = C[C_STEPS, j]
         # The offset of the pin read: the one of the half-bridge the applied duty drives.
@@ -242,10 +244,10 @@ def current(adc, enabled, P, C, S, G, K):
             c = emf - r_lim if d < 0.0 else emf + r_lim
             ii = S[S_I_I, j] + (c - u)
             u = c
-        if C[C_BUS_ADC, j] < K[K_BUS_HOLD]:
+        if C[C_BUS_ADC, j] < bus_hold:
             S[S_I_I, j] = _clip(ii, u_lim)
         # else: at the lock-out the IS pin may read nothing; hold the integrator.
-        if K[K_BUS_COMP] != 0.0:
+        if bus_comp:
             # The duty from the measured bus: u / V_bus, within the same duty limit.
             v = bus_v(j, C, K)
             new_steps = np.int64(np.rint(_clip(u, u_lim / supply_v * v) / v * arr))
