@@ -280,6 +280,21 @@ def zoh_ladder(key: int, co: Coefficients, h_s: float, levels: int) -> list[np.n
     return [eye + p[:N_X, :] for p in reversed(out)]
 
 
+def _with_room(
+    phis: np.ndarray, rates: np.ndarray, used: int, more: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mode tables ``(phis, rates)`` with room for ``more`` rows after the ``used`` ones:
+    the same arrays if they have it, else copies grown by doubling (at least 16 rows)."""
+    if used + more <= phis.shape[0]:
+        return phis, rates
+    grow = max(16, 2 * used, used + more)
+    new_phis = np.empty((grow,) + phis.shape[1:])
+    new_phis[:used] = phis[:used]
+    new_rates = np.empty((grow,) + rates.shape[1:])
+    new_rates[:used] = rates[:used]
+    return new_phis, new_rates
+
+
 class _ModeTables:
     """The matrices of the modes met so far for one parameter set, step and ladder depth,
     shared by every ``Plant`` with those (runs of a tuner or a study build many plants with
@@ -297,13 +312,7 @@ class _ModeTables:
         r = self.rows.get(key)
         if r is None:
             r = len(self.rows)
-            if r == self.phis.shape[0]:  # grow by doubling
-                grow = max(16, 2 * r)
-                phis = np.empty((grow,) + self.phis.shape[1:])
-                phis[:r] = self.phis[:r]
-                rates = np.empty((grow, 3, N_X + 2))
-                rates[:r] = self.rates[:r]
-                self.phis, self.rates = phis, rates
+            self.phis, self.rates = _with_room(self.phis, self.rates, r, 1)
             self.phis[r] = zoh_ladder(key, co, h_s, levels)
             a, b, e = affine(key, co)
             for j, q in enumerate((VEL, PVEL, I_A)):
@@ -556,14 +565,7 @@ class Plant:
 
     def _reserve(self, rows: int) -> None:
         """Room for ``rows`` more modes in the tables (grown by doubling)."""
-        row = self._n_loaded
-        if row + rows > self._phis.shape[0]:
-            grow = max(16, 2 * row, row + rows)
-            phis = np.empty((grow,) + self._phis.shape[1:])
-            phis[:row] = self._phis[:row]
-            rates = np.empty((grow, 3, N_X + 2))
-            rates[:row] = self._rates[:row]
-            self._phis, self._rates = phis, rates
+        self._phis, self._rates = _with_room(self._phis, self._rates, self._n_loaded, rows)
 
     def _preload(self, group: int) -> None:
         """Every mode of parameter set ``group`` that an earlier plant with the same
