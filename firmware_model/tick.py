@@ -49,8 +49,8 @@ from serial_protocol.messages import BoardHeartbeat, State, Telemetry
 
 __all__ = [
     "HEARTBEAT_TABLES", "TABLES", "bus_mv", "current_stage", "frame_heartbeat",
-    "frame_telemetry", "frame_wire", "framer_ok", "heartbeat_wire", "servo_stage", "state_of",
-    "trip_screen",
+    "frame_telemetry", "frame_wire", "framer_ok", "heartbeat_wire", "live_state", "member_state",
+    "servo_stage", "state_of", "trip_screen",
 ]  # fmt: skip
 
 # fs: floats.
@@ -303,15 +303,26 @@ def current_stage(adc, enabled, P, C, S, G, K, fs, fi, oc_ticks, bus_ticks):
 
 
 @kernel(inline="always")
-def state_of(j, fi, enabled, fault):
-    """The ``State`` code of member ``j``."""
-    if fault[j]:
-        return _FAULT
-    if not enabled[j]:
-        return _DISABLED
+def live_state(fi):
+    """The ``State`` code of an enabled member without a fault (the board's motion state:
+    the same for every member, so a member loop reads it once)."""
     if fi[FI_MOVING]:
         return _MOVING
     return _HOLDING if fi[FI_MOVED] else _IDLE
+
+
+@kernel(inline="always")
+def member_state(j, enabled, fault, live):
+    """The ``State`` code of member ``j``, ``live`` being ``live_state(fi)``."""
+    if fault[j]:
+        return _FAULT
+    return live if enabled[j] else _DISABLED
+
+
+@kernel(inline="always")
+def state_of(j, fi, enabled, fault):
+    """The ``State`` code of member ``j``."""
+    return member_state(j, enabled, fault, live_state(fi))
 
 
 # ---------------------------------------------------------------- framing

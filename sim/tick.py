@@ -78,6 +78,8 @@ from firmware_model.tick import (
     current_stage,
     frame_heartbeat,
     frame_telemetry,
+    live_state,
+    member_state,
     servo_stage,
     state_of,
 )
@@ -353,15 +355,26 @@ def run_ticks(
             sig0[k, 0] = sp_pos
             sig1[k, 0] = sp_vel
             sig2[k, 0] = sp_acc
+            # The motion state, read once: fi may alias the int64 log columns for the
+            # compiler, which then re-read it for every member (~10 ns a member).
+            live = live_state(fi)
             for j in range(n):
                 sig3[k, j] = P[P_POS, j]
+            for j in range(n):
                 sig4[k, j] = P[P_VEL, j]
+            for j in range(n):
                 sig5[k, j] = P[P_VEL_RAW, j]
+            for j in range(n):
                 sig6[k, j] = P[P_IMEAS, j]
+            for j in range(n):
                 sig7[k, j] = P[P_IREF, j]
+            for j in range(n):
                 sig8[k, j] = P[P_DUTY, j]
-                sig9[k, j] = state_of(j, fi, enabled, fault)
+            for j in range(n):
+                sig9[k, j] = member_state(j, enabled, fault, live)
+            for j in range(n):
                 sig10[k, j] = fault[j]
+            for j in range(n):
                 voltage[k, j] = volt[j]
         shifted, credit[0] = _pace(credit[0], dt_s, bps, ctx[CX_PENDING])
         ctx[CX_PENDING] -= shifted
