@@ -235,6 +235,18 @@ def sensor_mismatch_step(
     """
     worst = 0.0
     keep = 1.0 - dt_s / window_s
+    # The common case without the interval's two divisions: a member with no excess carried
+    # whose encoder speed is within tolerance_dps of the back-EMF speed of the measured
+    # current, |v - emf_dps| <= tolerance_dps, ends the tick at excess 0.0 exactly as the
+    # full computation does. Why, in floating point (IEEE rounding is monotone): with the
+    # spreads, the offset and alpha >= 0 and R > 0, the current's interval holds i and R's
+    # holds R (their computed ends too), so the computed ri_min <= fl(R i) <= ri_max and
+    # lo <= emf_dps <= hi; the computed diff is then at most fl(|v - emf_dps|) in every
+    # branch; tol >= tolerance_dps (ratio >= 0): diff - tol <= 0, dt > 0, and e = 0.0.
+    screen = (
+        sense_spread >= 0.0 and sense_offset_a >= 0.0 and r_spread >= 0.0
+        and alpha_per_k >= 0.0 and tolerance_ratio >= 0.0 and dt_s > 0.0
+    )  # fmt: skip
     for j in range(duty.shape[0]):
         if not live[j] or not emf_v_per_dps[j] > 0.0:  # off, or no EMF model to check by
             excess_deg[j] = 0.0
@@ -251,6 +263,9 @@ def sensor_mismatch_step(
         i = current_a[j]
         drive_dps = duty[j] * bus_v / ke
         emf_dps = drive_dps - r_ohm[j] * i / ke
+        if screen and excess_deg[j] == 0.0 and r_ohm[j] > 0.0 and abs(v - emf_dps) <= tolerance_dps:
+            excess_deg[j] = 0.0
+            continue
         # The true current's interval [i_lo, i_hi] (A; open below or above if unbounded).
         open_lo = open_hi = False
         if i * duty[j] > 0.0:

@@ -794,3 +794,94 @@ def test_the_measured_bus_lets_the_check_be_tighter():
     locked = run(exp, overrides={**tight, "safety.sensor_mismatch_measured_bus": True,
                                  "supply.voltage_v": 24.0}).log  # fmt: skip
     assert locked.bus_v.max() > 28.0 and np.all(locked.fault == 0)
+
+
+def _mismatch_oracle(duty, i, v, bus_v, r, ke, dt, window, tol_dps, ratio, step_max, excess,
+                     spread, offset, r_spread, winding_c, alpha, ambient):  # fmt: skip
+    """One live member's new excess by the docstring of ``sensor_mismatch_step``, computed in
+    full (no shortcut), operation for operation as the kernel's full path."""
+    drive = duty * bus_v / ke
+    emf = drive - r * i / ke
+    open_lo = open_hi = False
+    if i * duty > 0.0:
+        m = abs(i)
+        top = (m + offset) * (1.0 + spread)
+        blind = m <= offset
+        bottom = 0.0 if blind else (m - offset) * (1.0 - spread)
+        if i > 0.0:
+            i_lo, i_hi, open_lo = bottom, top, blind
+        else:
+            i_lo, i_hi, open_hi = -top, -bottom, blind
+    else:
+        i_lo, i_hi = min(0.0, i), max(0.0, i)
+    rise = 1.0 + alpha * max(winding_c - ambient, 0.0)
+    r_lo = r * (1.0 - r_spread)
+    r_hi = r * (1.0 + r_spread) * rise
+    ri_max = r_hi * i_hi if i_hi >= 0.0 else r_lo * i_hi
+    ri_min = r_lo * i_lo if i_lo >= 0.0 else r_hi * i_lo
+    if open_hi:
+        diff = max(v - (drive - ri_min / ke), 0.0)
+    elif open_lo:
+        diff = max((drive - ri_max / ke) - v, 0.0)
+    else:
+        lo, hi = drive - ri_max / ke, drive - ri_min / ke
+        diff = lo - v if v < lo else (v - hi if v > hi else 0.0)
+    tol = tol_dps + ratio * max(abs(emf), abs(v))
+    e = excess * (1.0 - dt / window) + min((diff - tol) * dt, step_max)
+    return e if e > 0.0 else 0.0
+
+
+_SIGNED = st.floats(-1.0, 1.0, allow_nan=False)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            _SIGNED, st.floats(-8.0, 8.0), st.floats(-60.0, 60.0), st.floats(0.05, 5.0),
+            st.floats(0.005, 0.05), st.sampled_from([0.0, 1e-9, 0.3, 5.0]), st.floats(0.0, 0.99),
+            st.floats(0.0, 0.5), st.floats(0.0, 0.99), st.floats(0.0, 160.0),
+        ),
+        min_size=1, max_size=12,
+    ),
+    st.floats(0.0, 200.0), st.sampled_from([0.0, 1e-6, 0.25]), st.floats(0.0, 0.01),
+)
+def test_sensor_mismatch_steps_shortcut_is_the_full_computation_bit_for_bit(
+    members, tol_dps, ratio, alpha
+):
+    # The kernel skips the interval for a member with no excess whose encoder speed is
+    # within tolerance_dps of the back-EMF speed (its docstring says why that gives 0.0):
+    # speeds drawn around that boundary, the excess 0 or carried, every sign of duty and
+    # current, blind and measured currents; the model's spreads as the firmware may set them.
+    # (Each member takes the shared spreads of the first: the kernel's are per call.)
+    n = len(members)
+    duty = np.array([m[0] for m in members])
+    cur = np.array([m[1] for m in members])
+    r = np.array([m[3] for m in members])
+    ke = np.array([m[4] for m in members])
+    excess = np.array([m[5] for m in members])
+    spread, offset, r_spread = members[0][6], members[0][7], members[0][8]
+    winding = np.array([m[9] for m in members])
+    drive = duty * 24.0 / ke
+    emf = drive - r * cur / ke
+    # around |v - emf| = tol_dps (every other member: within 2 % of it, either side),
+    # elsewhere anywhere within 60 deg/s
+    near = np.array([m[2] for m in members]) / 3000.0  # -0.02 .. 0.02
+    side = np.where(np.arange(n) % 4 < 2, 1.0, -1.0)
+    v = np.where(
+        np.arange(n) % 2 == 0, emf + side * tol_dps * (1.0 + near),
+        emf + np.array([m[2] for m in members]),
+    )  # fmt: skip
+    args = (24.0, r, ke, 0.002, 0.05, tol_dps, ratio, 10.0)
+    e = excess.copy()
+    worst = safety.sensor_mismatch_step(
+        duty, cur, v, np.ones(n, bool), *args, e, np.zeros(n, np.int64), 0.0, 4096.0,
+        spread, offset, r_spread, winding, alpha, 40.0,
+    )  # fmt: skip
+    want = [
+        _mismatch_oracle(duty[j], cur[j], v[j], 24.0, r[j], ke[j], 0.002, 0.05, tol_dps, ratio,
+                         10.0, excess[j], spread, offset, r_spread, winding[j], alpha, 40.0)
+        for j in range(n)
+    ]  # fmt: skip
+    assert e.tobytes() == np.array(want).tobytes()
+    assert worst == max([0.0, *want])
