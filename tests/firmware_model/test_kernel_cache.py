@@ -133,3 +133,16 @@ def test_a_cold_start_compiles_the_plant_step_in_a_second_process(tmp_path):
     )  # fmt: skip
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip().splitlines()[-1] == "hits 1 misses 0", out.stdout
+
+
+def _divide(a, b, m, k):
+    return a / b, m % k, m // k
+
+
+def test_a_kernels_division_by_zero_gives_numpys_values_and_never_raises():
+    # The board never raises: compiled code does not throw ZeroDivisionError (numba's
+    # "python" error model would), it gives inf / NaN / 0 as numpy does.
+    f = kernel_cache.kernel(_divide, cache=False)
+    q, r, d = f(1.0, 0.0, 7, 0)
+    assert q == float("inf") and r == 0 and d == 0
+    assert f(7.0, 2.0, -7, 2) == (3.5, 1, -4)  # and Python's floored integer semantics
