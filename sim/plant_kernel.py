@@ -3,8 +3,12 @@ member's step (the recursion over halved sub-steps), ``step_members`` runs it fo
 member in one call. The one implementation for every N.
 
 ``step_members`` takes the common case itself: a whole step in the start mode that ends in
-it and passes the excursion check (``step``'s first pass, the same operations) is accepted
-without ``step``'s sub-step stack; anything else goes to ``step`` from the start. Kernels use
+it and passes the excursion check (``step``'s first pass) is accepted without ``step``'s
+sub-step stack. ``_stays`` tells it so with the same expressions as ``key``'s and
+``_excursion``'s, evaluated together without branches (with the bridge on below I_CL, an
+end speed not exactly 0, and every boundary apart from its edge; the speeds' exact gates
+and Hermite tests, ``_speeds_leave``, only when a speed is within its gate's bound);
+anything else goes to ``step`` from the start, which decides the same. Kernels use
 ``error_model="numpy"``: no division-by-zero checks in the loops (no division here can be
 by zero on a valid bench; one would give inf/NaN instead of raising inside compiled code).
 
@@ -41,11 +45,12 @@ _B_ON, _B_LIMIT_POS, _B_LIMIT_NEG, _B_DIODE_POS, _B_DIODE_NEG, _B_OPEN = range(6
 # consts[...] indices.
 (
     _WBM, _WBP, _HALF, _K, _C, _N, _VS, _R, _KE, _ICL, _VD2, _INV_N, _KT, _TCM, _BM, _G_MAX,
-    _JM, _TCP, _BP, _JP, _H_S, _ETA, _TSM, _WSM, _TSP, _WSP, _INV_R, _INV_JM, _INV_JP,
-) = range(29)  # fmt: skip
-N_CONSTS = 29
-# _INV_*: 1 / R, 1 / J_m, 1 / J_p, for _excursion's quick bound (never for a result).
-# _excursion's quick bounds: 1 + this covers their rounding against the exact gates'.
+    _JM, _TCP, _BP, _JP, _H_S, _ETA, _TSM, _WSM, _TSP, _WSP,
+    _UB_M0, _UB_MA, _UB_MW, _UB_MI, _UB_MT, _UB_P0, _UB_PA, _UB_PT, _UB_PP,
+) = range(35)  # fmt: skip
+N_CONSTS = 35
+# _UB_*: the coefficients of gate_bounds (magnitudes, divided by J_m or J_p; never for a
+# result). 1 + _MARGIN covers their rounding against the exact gates'.
 _MARGIN = 1.0 + 1e-9
 # Mechanical modes per bridge mode (sim.plant.MECH_MODES) and the stuck power-flow mode.
 _MECH = 225
@@ -63,7 +68,19 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     values.append(float(h_s))
     values.append(float(co.eta))
     values += [float(co.tsm), float(co.wsm), float(co.tsp), float(co.wsp)]
-    values += [1.0 / float(co.r), 1.0 / float(co.jm), 1.0 / float(co.jp)]
+    # gate_bounds' coefficients: sums of magnitudes, over |J_m| or |J_p|.
+    kt, r, jm, jp = abs(float(co.kt)), abs(float(co.r)), abs(float(co.jm)), abs(float(co.jp))
+    values += [
+        abs(float(co.wsm)),
+        (kt * abs(float(co.vs)) / r + abs(float(co.tsm))) / jm,
+        (kt * abs(float(co.ke)) / r + abs(float(co.bm))) / jm,
+        kt / jm,
+        abs(float(g_max)) / jm,
+        abs(float(co.wsp)),
+        abs(float(co.tsp)) / jp,
+        2.0 / jp,
+        abs(float(co.bp)) / jp,
+    ]
     return np.array(values)
 
 
@@ -195,9 +212,8 @@ def _apart(p0, p1, m0, m1, edge):
     True if both ends are farther from both edges than the change over the step, so the
     cubic cannot leave their region."""
     reach = abs(m0) + abs(m1) + abs(p1 - p0)
-    d0 = abs(p0) - edge
-    d1 = abs(p1) - edge
-    return (d0 > reach or -d0 > reach) and (d1 > reach or -d1 > reach)
+    # |d| > reach: d > reach or -d > reach, in fewer instructions (and no branch)
+    return (abs(abs(p0) - edge) > reach) & (abs(abs(p1) - edge) > reach)
 
 
 @kernel(error_model="numpy", inline="always")
@@ -217,17 +233,14 @@ def gates(wmax, ai, tbmax, apmax, h, kc):
 
 @kernel(error_model="numpy", inline="always")
 def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
-    """Upper bounds of ``gates`` without a division (reciprocals from ``pack_consts``): the
-    same sums of magnitudes, so the two differ by a few ulps, which ``_MARGIN`` covers (a
-    speed beyond its bound is beyond its gate, whatever the rounding)."""
-    i_ub = (abs(kc[_VS]) + abs(kc[_KE]) * wmax) * kc[_INV_R]
-    if ai > i_ub:
-        i_ub = ai
-    a_m = abs(kc[_KT]) * i_ub + abs(kc[_TSM]) + abs(kc[_BM]) * wmax + tbmax * abs(kc[_G_MAX])
-    a_p = 2.0 * tbmax + abs(kc[_TSP]) + abs(kc[_BP]) * apmax
-    ub_m = (abs(kc[_WSM]) + h * a_m * kc[_INV_JM]) * _MARGIN
-    ub_p = (abs(kc[_WSP]) + h * a_p * kc[_INV_JP]) * _MARGIN
-    return ub_m, ub_p
+    """Upper bounds of ``gates`` without a division: the same terms as magnitudes, with
+    ``K_t max(a, ai)`` bounded by ``K_t (a + ai)`` and the coefficients summed and divided
+    once in ``pack_consts`` (``_UB_*``), so a bound is at least its gate in exact arithmetic
+    and the rounding of either is a few ulps, which ``_MARGIN`` covers (a speed beyond its
+    bound is beyond its gate, whatever the rounding)."""
+    a_m = kc[_UB_MA] + kc[_UB_MW] * wmax + kc[_UB_MI] * ai + kc[_UB_MT] * tbmax
+    a_p = kc[_UB_PA] + kc[_UB_PT] * tbmax + kc[_UB_PP] * apmax
+    return (kc[_UB_M0] + h * a_m) * _MARGIN, (kc[_UB_P0] + h * a_p) * _MARGIN
 
 
 @kernel(error_model="numpy")
@@ -246,7 +259,7 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     largest current the armature can approach, ``(V_s + |K_e w|) / R``; the platter's twice
     the belt torque at the ends plus its friction."""
     inv_n, half, k, c = kc[_INV_N], kc[_HALF], kc[_K], kc[_C]
-    wbm, wbp, icl = kc[_WBM], kc[_WBP], kc[_ICL]
+    icl = kc[_ICL]
     r0 = w0 * inv_n - p0
     r1 = w1 * inv_n - p1
     ar0, ar1 = abs(r0), abs(r1)
@@ -292,11 +305,20 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
         m0, m1 = tbd0 * h, tbd1 * h
         if not _apart(tb0, tb1, m0, m1, 0.0) and hermite_leaves(tb0, tb1, m0, m1, 0.0):
             return True
-    aw0, aw1 = abs(w0), abs(w1)
-    wmax = aw0 if aw0 > aw1 else aw1
     tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
     ai0, ai1 = abs(i0), abs(i1)
     ai = ai0 if ai0 >= ai1 else ai1
+    return _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc)
+
+
+@kernel(error_model="numpy")
+def _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc):
+    """``_excursion``'s last test, on the motor and platter speeds (``w``, ``p``) with their
+    rates (``wd``, ``pd``) at both ends, ``ai`` the larger end current's magnitude and
+    ``tbmax`` the belt torque's bound (its docstring)."""
+    wbm, wbp = kc[_WBM], kc[_WBP]
+    aw0, aw1 = abs(w0), abs(w1)
+    wmax = aw0 if aw0 > aw1 else aw1
     # Friction bounds at their largest (the breakaway torque; Coulomb without stiction).
     wsm, wsp = kc[_WSM], kc[_WSP]
     ap0, ap1 = abs(p0), abs(p1)
@@ -322,6 +344,82 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
         hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
         or (wsp > wbp and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wsp))
     )
+
+
+@kernel(error_model="numpy", inline="always")
+def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
+    """``step_members``' test of ``step``'s first pass, the step of ``h`` in mode ``k0``
+    (>= 0) from ``(i0, w0, t0, p0)`` to ``(i1, w1, t1, p1)``. Returns ``(ok, sure, wd0,
+    wd1, pd0, pd1, ai, tbmax)``: ``ok`` if the step ends in ``k0``, does not cross I_CL and
+    ``_excursion``'s tests before ``_speeds_leave`` pass (twist, current with the bridge on,
+    belt torque in contact: each apart from its edge); ``sure`` if both speeds are beyond
+    their gates' bounds too (``_speeds_leave`` is then False); the rest are
+    ``_speeds_leave``'s arguments. So ``ok and (sure or not _speeds_leave(...))`` is
+    ``step``'s acceptance, and False only means "not sure" (``step`` decides): so is an end
+    speed of exactly 0 (``key``'s power flow at rest) or a current at or past I_CL with the
+    bridge enabled (its limitation).
+
+    ``key``'s and ``_excursion``'s expressions, evaluated together and without branches:
+    the common case is one stretch of code (~25 % less time than taking the branches
+    one after the other, the same operations)."""
+    half, k, c, icl = kc[_HALF], kc[_K], kc[_C], kc[_ICL]
+    # key(i1, w1, t1, p1, d, en) == k0
+    fm = _friction_region(w1, kc[_WBM], kc[_WSM])
+    fp = _friction_region(p1, kc[_WBP], kc[_WSP])
+    contact = 2 if t1 > half else (0 if t1 < -half else 1)
+    tb = k * (t1 - (half if t1 > half else -half)) + c * (w1 / kc[_N] - p1)
+    flow = 1 if (contact != 1) & (tb * w1 < 0) else 0
+    emf = kc[_KE] * w1
+    vd2 = kc[_VD2]
+    off = _B_DIODE_NEG if emf > vd2 else (_B_DIODE_POS if emf < -vd2 else _B_OPEN)
+    off = _B_DIODE_POS if i1 > 0 else (_B_DIODE_NEG if i1 < 0 else off)
+    # Enabled below I_CL the bridge is on (so k0 is, and step's I_CL test cannot fail).
+    bridge = _B_ON if en else off
+    same = ((((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow == k0) & (w1 != 0.0)
+    same &= (not en) | (abs(i1) < icl)
+    # _excursion's quick tests: twist, current (bridge on), belt torque (in contact), gates.
+    inv_n = kc[_INV_N]
+    r0 = w0 * inv_n - p0
+    r1 = w1 * inv_n - p1
+    ar0, ar1 = abs(r0), abs(r1)
+    at0, at1 = abs(t0), abs(t1)
+    reach = (ar0 + ar1) * h + abs(t1 - t0)
+    d0 = at0 - half
+    d1 = at1 - half
+    same &= (abs(d0) > reach) & (abs(d1) > reach)
+    c0, c2, c3, c4, c5, c6 = (
+        rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
+        rates[row, 2, 5], rates[row, 2, 6],
+    )  # fmt: skip
+    di0 = c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6
+    di1 = c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6
+    same &= (k0 >= _MECH) | _apart(i0, i1, di0 * h, di1 * h, icl)
+    v0, v2, v3, v4, v6 = (
+        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
+    )  # fmt: skip
+    q0, q2, q3, q4, q6 = (
+        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
+    )  # fmt: skip
+    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
+    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
+    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
+    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
+    sh = half if t0 > 0.0 else -half
+    tb0 = k * (t0 - sh) + c * r0
+    tb1 = k * (t1 - sh) + c * r1
+    tbd0 = k * r0 + c * (wd0 * inv_n - pd0)
+    tbd1 = k * r1 + c * (wd1 * inv_n - pd1)
+    same &= (not ((d0 > 0.0) & (d1 > 0.0))) | _apart(tb0, tb1, tbd0 * h, tbd1 * h, 0.0)
+    aw0, aw1 = abs(w0), abs(w1)
+    wmax = aw0 if aw0 > aw1 else aw1
+    tbmax = k * (at0 if at0 > at1 else at1) + c * (ar0 if ar0 > ar1 else ar1)
+    ai0, ai1 = abs(i0), abs(i1)
+    ai = ai0 if ai0 >= ai1 else ai1
+    ap0, ap1 = abs(p0), abs(p1)
+    apmax = ap0 if ap0 > ap1 else ap1
+    ub_m, ub_p = gate_bounds(wmax, ai, tbmax, apmax, h, kc)
+    sure = (aw0 > ub_m) & (aw1 > ub_m) & (ap0 > ub_p) & (ap1 > ub_p)
+    return same, sure, wd0, wd1, pd0, pd1, ai, tbmax
 
 
 @kernel(error_model="numpy")
@@ -368,12 +466,6 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
         + phis[row, level, 4, 5] * d + phis[row, level, 4, 6]
     )  # fmt: skip
     return ni, np_, nw, ntw, nwp
-
-
-# The member loop's copy of key, inlined into it (numba IR; one source, step calls the plain
-# one): N = 1 ran ~10 % slower calling it (the call, not reference counts: there are none).
-# _excursion is called (inlining its copy cost ~a third of the cold compile).
-_key_inline = kernel(error_model="numpy", inline="always")(key.py_func)
 
 
 @kernel(error_model="numpy")
@@ -471,7 +563,8 @@ def step_members(
     into ``out_x``, each member's mechanical end mode into ``out_keys``. ``keys_in``: the
     mechanical modes of ``x`` if ``known`` (``x`` is the last ``out_x``). Returns ``(next,
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
-    set ``group`` is missing and members from ``next`` on are still to do."""
+    set ``group`` is missing and members from ``next`` on are still to do (``out_x[next]``
+    may have been written)."""
     events = 0
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
@@ -493,25 +586,27 @@ def step_members(
         if known and en and -icl < i < icl:
             k0 = keys_in[j]
         else:
-            k0 = _key_inline(i, w, tw, wp, d, en, kc)
+            k0 = key(i, w, tw, wp, d, en, kc)
         # The common case first, without step's sub-step stack: the whole step in the start
-        # mode ends in it and leaves it nowhere in between (exactly step's first pass).
+        # mode ends in it and leaves it nowhere in between (step's first pass, _stays).
         row = sl[k0]
         if row >= 0 and levels > level0 and budget > 0:
             ni, np_, nw, ntw, nwp = _advance(phis, row, level0, i, p, w, tw, wp, d)
-            k1 = _key_inline(ni, nw, ntw, nwp, d, en, kc)
-            if k1 == k0:
-                bridge_on = k0 // _MECH == _B_ON
-                if not (bridge_on and -icl <= i <= icl and (ni > icl or ni < -icl)) and not (
-                    _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h_s, kc)
-                ):
-                    out_x[j, 0] = ni
-                    out_x[j, 1] = np_
-                    out_x[j, 2] = nw
-                    out_x[j, 3] = ntw
-                    out_x[j, 4] = nwp
-                    out_keys[j] = k1 % _MECH
-                    continue
+            # The member's result if accepted (step overwrites it otherwise); stored first,
+            # so that nothing lives across the call below.
+            out_x[j, 0] = ni
+            out_x[j, 1] = np_
+            out_x[j, 2] = nw
+            out_x[j, 3] = ntw
+            out_x[j, 4] = nwp
+            ok, sure, wd0, wd1, pd0, pd1, ai, tbmax = _stays(
+                k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, rates, row, h_s, kc
+            )
+            if ok and (
+                sure or not _speeds_leave(w, nw, wp, nwp, wd0, wd1, pd0, pd1, ai, tbmax, h_s, kc)
+            ):
+                out_keys[j] = k0 % _MECH
+                continue
         r = step(i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, level0)
         if r[7] >= 0:
             return j, events, g, r[7]
