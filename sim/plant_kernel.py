@@ -8,7 +8,9 @@ sub-step stack. ``_stays`` tells it so with the same expressions as ``key``'s an
 ``_excursion``'s, evaluated together without branches (with the bridge on below I_CL, an
 end speed not exactly 0, and every boundary apart from its edge; the speeds' exact gates
 and Hermite tests, ``_speeds_leave``, only when a speed is within its gate's bound);
-anything else goes to ``step`` from the start, which decides the same. Kernels use
+anything else goes to ``step`` from the start, which decides the same (a step that ends in
+its start mode with a boundary near its edge: from its first pass's ``_excursion``
+test, the advance and end key passed in). Kernels use
 ``error_model="numpy"``: no division-by-zero checks in the loops (no division here can be
 by zero on a valid bench; one would give inf/NaN instead of raising inside compiled code).
 
@@ -317,47 +319,59 @@ def _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc):
     rates (``wd``, ``pd``) at both ends, ``ai`` the larger end current's magnitude and
     ``tbmax`` the belt torque's bound (its docstring)."""
     wbm, wbp = kc[_WBM], kc[_WBP]
-    aw0, aw1 = abs(w0), abs(w1)
-    wmax = aw0 if aw0 > aw1 else aw1
     # Friction bounds at their largest (the breakaway torque; Coulomb without stiction).
     wsm, wsp = kc[_WSM], kc[_WSP]
+    # First hermite_leaves' own first test (_apart), which needs no gate: a speed whose
+    # ends are apart from its edges cannot leave (the common case: speeds within their
+    # gates but far from the bands compared with their change over the step).
+    mw0, mw1 = wd0 * h, wd1 * h
+    mp0, mp1 = pd0 * h, pd1 * h
+    near_m = not _apart(w0, w1, mw0, mw1, wbm) or (
+        wsm > wbm and not _apart(w0, w1, mw0, mw1, wsm)
+    )
+    near_p = not _apart(p0, p1, mp0, mp1, wbp) or (
+        wsp > wbp and not _apart(p0, p1, mp0, mp1, wsp)
+    )
+    if not (near_m or near_p):
+        return False
+    aw0, aw1 = abs(w0), abs(w1)
+    wmax = aw0 if aw0 > aw1 else aw1
     ap0, ap1 = abs(p0), abs(p1)
     apmax = ap0 if ap0 > ap1 else ap1
-    # First the gates' upper bounds without a division (the exact gates divide twice in a
-    # row: most of this function's time): a speed beyond its bound is beyond its gate.
+    # Then the gates' upper bounds without a division (the exact gates divide twice in a
+    # row): a speed beyond its bound is beyond its gate.
     ub_m, ub_p = gate_bounds(wmax, ai, tbmax, apmax, h, kc)
-    check_m = not (aw0 > ub_m and aw1 > ub_m)
-    check_p = not (ap0 > ub_p and ap1 > ub_p)
+    check_m = near_m and not (aw0 > ub_m and aw1 > ub_m)
+    check_p = near_p and not (ap0 > ub_p and ap1 > ub_p)
     if not (check_m or check_p):
         return False
     gate_m, gate_p = gates(wmax, ai, tbmax, apmax, h, kc)
     check_m = check_m and (aw0 <= gate_m or aw1 <= gate_m)
     check_p = check_p and (ap0 <= gate_p or ap1 <= gate_p)
-    if not (check_m or check_p):
-        return False
     if check_m and (
-        hermite_leaves(w0, w1, wd0 * h, wd1 * h, wbm)
-        or (wsm > wbm and hermite_leaves(w0, w1, wd0 * h, wd1 * h, wsm))
+        hermite_leaves(w0, w1, mw0, mw1, wbm)
+        or (wsm > wbm and hermite_leaves(w0, w1, mw0, mw1, wsm))
     ):
         return True
     return check_p and (
-        hermite_leaves(p0, p1, pd0 * h, pd1 * h, wbp)
-        or (wsp > wbp and hermite_leaves(p0, p1, pd0 * h, pd1 * h, wsp))
+        hermite_leaves(p0, p1, mp0, mp1, wbp)
+        or (wsp > wbp and hermite_leaves(p0, p1, mp0, mp1, wsp))
     )
 
 
 @kernel(error_model="numpy", inline="always")
 def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     """``step_members``' test of ``step``'s first pass, the step of ``h`` in mode ``k0``
-    (>= 0) from ``(i0, w0, t0, p0)`` to ``(i1, w1, t1, p1)``. Returns ``(ok, sure, wd0,
-    wd1, pd0, pd1, ai, tbmax)``: ``ok`` if the step ends in ``k0``, does not cross I_CL and
-    ``_excursion``'s tests before ``_speeds_leave`` pass (twist, current with the bridge on,
-    belt torque in contact: each apart from its edge); ``sure`` if both speeds are beyond
-    their gates' bounds too (``_speeds_leave`` is then False); the rest are
-    ``_speeds_leave``'s arguments. So ``ok and (sure or not _speeds_leave(...))`` is
-    ``step``'s acceptance, and False only means "not sure" (``step`` decides): so is an end
-    speed of exactly 0 (``key``'s power flow at rest) or a current at or past I_CL with the
-    bridge enabled (its limitation).
+    (>= 0) from ``(i0, w0, t0, p0)`` to ``(i1, w1, t1, p1)``. Returns ``(ok, sure, mode,
+    wd0, wd1, pd0, pd1, ai, tbmax)``: ``mode`` if the step ends in ``k0`` with an end speed
+    not exactly 0 (``key``'s power flow at rest) and, with the bridge enabled, a current
+    below I_CL (so ``k0``'s bridge is on iff enabled, and ``step``'s I_CL test passes);
+    ``ok`` if besides ``_excursion``'s tests before ``_speeds_leave`` pass (twist, current
+    with the bridge on, belt torque in contact: each apart from its edge); ``sure`` if both
+    speeds are beyond their gates' bounds too (``_speeds_leave`` is then False); the rest
+    are ``_speeds_leave``'s arguments. So ``ok and (sure or not _speeds_leave(...))`` is
+    ``step``'s acceptance, and ``mode`` and ``not _excursion(...)`` too; False only means
+    "not sure" (``step`` decides).
 
     ``key``'s and ``_excursion``'s expressions, evaluated together and without branches:
     the common case is one stretch of code (~25 % less time than taking the branches
@@ -377,6 +391,7 @@ def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     bridge = _B_ON if en else off
     same = ((((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow == k0) & (w1 != 0.0)
     same &= (not en) | (abs(i1) < icl)
+    mode = same
     # _excursion's quick tests: twist, current (bridge on), belt torque (in contact), gates.
     inv_n = kc[_INV_N]
     r0 = w0 * inv_n - p0
@@ -419,7 +434,7 @@ def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     apmax = ap0 if ap0 > ap1 else ap1
     ub_m, ub_p = gate_bounds(wmax, ai, tbmax, apmax, h, kc)
     sure = (aw0 > ub_m) & (aw1 > ub_m) & (ap0 > ub_p) & (ap1 > ub_p)
-    return same, sure, wd0, wd1, pd0, pd1, ai, tbmax
+    return same, sure, mode, wd0, wd1, pd0, pd1, ai, tbmax
 
 
 @kernel(error_model="numpy")
@@ -470,7 +485,8 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
 
 @kernel(error_model="numpy")
 def step(
-    i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, level0,
+    i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, level0, near,
+    ni, np_, nw, ntw, nwp,
 ):  # fmt: skip
     """One plant step of ``h_s / 2**level0`` with ``(d, en)`` held, from mode ``start_key``
     (-1: work it out), as ``Plant.update`` describes: halve a step whose end mode differs from
@@ -482,9 +498,21 @@ def step(
     the last sub-step's end, the switches located to the finest level, and ``need`` = -1;
     or ``need`` >= 0 when mode ``need`` is not in the tables yet (the other values are then
     meaningless: load the mode and call again with the same arguments).
+
+    ``near``: the first pass is known to end in ``start_key`` at ``(ni, np_, nw, ntw, nwp)``
+    with no I_CL crossing and ``level0 < levels``, ``budget > 0`` (``step_members``: its
+    ``_stays``' ``mode``); then it takes ``_excursion``'s test at once. Else those five
+    values are not used.
     """
     h_s = kc[_H_S]
     icl = kc[_ICL]
+    if near:
+        # step's first pass with its advance and end key known (bridge on iff key < _MECH)
+        h = h_s / (1 << level0)
+        bridge_on = start_key < _MECH
+        row = slots[start_key]
+        if not _excursion(i, w, tw, wp, ni, nw, ntw, nwp, d, bridge_on, rates, row, h, kc):
+            return ni, np_, nw, ntw, nwp, start_key, 0, -1
     if start_key < 0:
         start_key = key(i, w, tw, wp, d, en, kc)
     # The sub-steps, last in first out: a halved step does its first half next (in its
@@ -498,10 +526,14 @@ def step(
     k = start_key
     n_events = 0
     key_end = start_key
+    k_row = row = -1
     while True:
         if k < 0:
             k = key(i, w, tw, wp, d, en, kc)
-        row = slots[k]
+        if k != k_row:
+            # (a branch, taken rarely: the tables' loads need not wait for the key)
+            k_row = k
+            row = slots[k]
         if row < 0:
             return i, p, w, tw, wp, key_end, n_events, k
         ni, np_, nw, ntw, nwp = _advance(phis, row, level, i, p, w, tw, wp, d)
@@ -573,12 +605,15 @@ def step_members(
     scale = 1.0 / (1 << level0)
     h_s = kc[_H_S] * scale
     sl = slots[0]
+    k_last = -1
+    row_last = -1
     for j in range(start, x.shape[0]):
         if not shared:
             g = group[j]
             kc = consts[g]
             sl = slots[g]
             h_s = kc[_H_S] * scale
+            k_last = -1
         i, p, w, tw, wp = x[j, 0], x[j, 1], x[j, 2], x[j, 3], x[j, 4]
         d = duty[j]
         en = enable[j]
@@ -588,8 +623,12 @@ def step_members(
         else:
             k0 = key(i, w, tw, wp, d, en, kc)
         # The common case first, without step's sub-step stack: the whole step in the start
-        # mode ends in it and leaves it nowhere in between (step's first pass, _stays).
-        row = sl[k0]
+        # mode ends in it and leaves it nowhere in between (step's first pass, _stays). The
+        # row by a branch (most members share the mode): the loads need not wait for it.
+        if k0 != k_last:
+            k_last = k0
+            row_last = sl[k0]
+        row = row_last
         if row >= 0 and levels > level0 and budget > 0:
             ni, np_, nw, ntw, nwp = _advance(phis, row, level0, i, p, w, tw, wp, d)
             # The member's result if accepted (step overwrites it otherwise); stored first,
@@ -599,7 +638,7 @@ def step_members(
             out_x[j, 2] = nw
             out_x[j, 3] = ntw
             out_x[j, 4] = nwp
-            ok, sure, wd0, wd1, pd0, pd1, ai, tbmax = _stays(
+            ok, sure, mode, wd0, wd1, pd0, pd1, ai, tbmax = _stays(
                 k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, rates, row, h_s, kc
             )
             if ok and (
@@ -607,7 +646,14 @@ def step_members(
             ):
                 out_keys[j] = k0 % _MECH
                 continue
-        r = step(i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, level0)
+            near = mode and not ok
+        else:
+            near = False
+        # (the end state from out_x: nothing of the common case lives across the calls)
+        r = step(
+            i, p, w, tw, wp, d, en, k0, levels, budget, sl, phis, rates, kc, level0, near,
+            out_x[j, 0], out_x[j, 1], out_x[j, 2], out_x[j, 3], out_x[j, 4],
+        )  # fmt: skip
         if r[7] >= 0:
             return j, events, g, r[7]
         out_x[j, 0] = r[0]
