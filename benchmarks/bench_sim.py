@@ -210,10 +210,20 @@ print(json.dumps({{"import_s": t1 - t0, "kernels_s": t2 - t1, "run_s": t3 - t2}}
 """
 
 
+def _user_env(**extra: str) -> dict[str, str]:
+    """The environment of a user's process: this one's without ``PYTHONDONTWRITEBYTECODE``
+    (a development shell may set it; a user's Python writes each module's bytecode on the
+    first import and loads it afterwards, which is what a fresh process's import costs)."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+    env.update(extra)
+    return env
+
+
 def _python(code: str, env: dict[str, str] | None = None) -> dict[str, float]:
     out = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env
-    )
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True,
+        env=_user_env() if env is None else env,
+    )  # fmt: skip
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -267,7 +277,7 @@ def paired(
 def fresh_process(tree: str, repeat: int) -> None:
     with tempfile.TemporaryDirectory() as cache:
         # An empty numba cache: what the first run after an install does.
-        cold = _python(_FRESH.format(tree=tree), env=dict(os.environ, NUMBA_CACHE_DIR=cache))
+        cold = _python(_FRESH.format(tree=tree), env=_user_env(NUMBA_CACHE_DIR=cache))
     print(
         f"    first run after an install (empty numba cache): import {cold['import_s']:.2f} s, "
         f"compiling and caching the kernels {cold['kernels_s']:.1f} s, run + decode "
@@ -294,7 +304,7 @@ def commands(trees: dict[str, str], repeat: int) -> None:
             for name, tree in trees.items():
                 with tempfile.TemporaryDirectory() as tmp:
                     extra = ["--out", tmp]
-                    env = dict(os.environ, PYTHONPATH=tree, MPLBACKEND="Agg")
+                    env = _user_env(PYTHONPATH=tree, MPLBACKEND="Agg")
                     t0 = time.perf_counter()
                     subprocess.run(
                         [sys.executable, "-m", "sim.cli", *argv, *extra], cwd=tree, env=env,
