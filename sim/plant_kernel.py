@@ -245,6 +245,39 @@ def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
     return (kc[_UB_M0] + h * a_m) * _MARGIN, (kc[_UB_P0] + h * a_p) * _MARGIN
 
 
+@kernel(error_model="numpy", inline="always")
+def _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d):
+    """di/dt at both ends of a step in the mode of table row ``row`` (``rates[row, 2]``, the
+    row of ``[A | B | e]`` of the current; the position's column is not used)."""
+    # Scalar loads, no views (a view costs reference counting in numba).
+    c0, c2, c3, c4, c5, c6 = (
+        rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
+        rates[row, 2, 5], rates[row, 2, 6],
+    )  # fmt: skip
+    return (
+        c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6,
+        c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6,
+    )
+
+
+@kernel(error_model="numpy", inline="always")
+def _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1):
+    """The motor's and the platter's accelerations at both ends of a step in the mode of table
+    row ``row`` (``rates[row, 0]``, ``rates[row, 1]``): ``(wd0, pd0, wd1, pd1)``."""
+    v0, v2, v3, v4, v6 = (
+        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
+    )  # fmt: skip
+    q0, q2, q3, q4, q6 = (
+        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
+    )  # fmt: skip
+    return (
+        v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6,
+        q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6,
+        v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6,
+        q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6,
+    )
+
+
 @kernel(error_model="numpy")
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
@@ -276,26 +309,11 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     if bridge_on:
         # The chip's current limitation: a current that rises past I_CL and falls back
         # within the step (the back-EMF catching up) was held at I_CL meanwhile.
-        c0, c2, c3, c4, c5, c6 = (
-            rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
-            rates[row, 2, 5], rates[row, 2, 6],
-        )  # fmt: skip
-        di0 = c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6
-        di1 = c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6
+        di0, di1 = _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d)
         m0, m1 = di0 * h, di1 * h
         if not _apart(i0, i1, m0, m1, icl) and hermite_leaves(i0, i1, m0, m1, icl):
             return True
-    # Scalar loads, no views (a view costs reference counting in numba).
-    v0, v2, v3, v4, v6 = (
-        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
-    )  # fmt: skip
-    q0, q2, q3, q4, q6 = (
-        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
-    )  # fmt: skip
-    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
-    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
-    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
-    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
+    wd0, pd0, wd1, pd1 = _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1)
     if d0 > 0.0 and d1 > 0.0:
         # In contact at both ends (same side): the belt torque's sign sets the power flow
         # through the gearbox; a sign change and back inside the step is a hidden switch.
@@ -402,23 +420,9 @@ def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     d0 = at0 - half
     d1 = at1 - half
     same &= (abs(d0) > reach) & (abs(d1) > reach)
-    c0, c2, c3, c4, c5, c6 = (
-        rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
-        rates[row, 2, 5], rates[row, 2, 6],
-    )  # fmt: skip
-    di0 = c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6
-    di1 = c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6
+    di0, di1 = _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d)
     same &= (k0 >= _MECH) | _apart(i0, i1, di0 * h, di1 * h, icl)
-    v0, v2, v3, v4, v6 = (
-        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
-    )  # fmt: skip
-    q0, q2, q3, q4, q6 = (
-        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
-    )  # fmt: skip
-    wd0 = v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6
-    pd0 = q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6
-    wd1 = v0 * i1 + v2 * w1 + v3 * t1 + v4 * p1 + v6
-    pd1 = q0 * i1 + q2 * w1 + q3 * t1 + q4 * p1 + q6
+    wd0, pd0, wd1, pd1 = _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1)
     sh = half if t0 > 0.0 else -half
     tb0 = k * (t0 - sh) + c * r0
     tb1 = k * (t1 - sh) + c * r1
