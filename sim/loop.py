@@ -995,7 +995,9 @@ _ASIDE: list[Any] = []  # the second compiling process of _compile_plant_aside (
 _ASIDE_CODE = (
     "import pickle, sys; sys.path.insert(0, {root!r}); "
     "from sim.supply import step_period; "
-    "step_period.compile(pickle.loads(sys.stdin.buffer.read()))"
+    "from firmware_model.laws.float64 import reset_control; "
+    "plant, reset = pickle.loads(sys.stdin.buffer.read()); "
+    "step_period.compile(plant); reset_control.compile(reset)"
 )
 
 
@@ -1004,7 +1006,8 @@ def _compile_plant_aside(sim: Simulation) -> None:
     the plant's step (``sim.supply.step_period``, ~5.6 s of it) depends on nothing else of
     the tick, so a second process compiles it meanwhile (2 cores) and ``run_ticks`` loads it
     from the cache when its typing reaches the call, ~6 s in (numba's dispatcher looks in the
-    cache before it compiles). If the second process cannot start, or lags, the tick
+    cache before it compiles); then the law's ``reset_control`` (0.6 s), first called by the
+    boot after the tick is compiled. If the second process cannot start, or lags, the tick
     compiles the step itself: the same machine code either way. Does nothing once the step
     is in the cache (its index is read, the step not loaded)."""
     if _ASIDE:
@@ -1040,7 +1043,11 @@ def _compile_plant_aside(sim: Simulation) -> None:
             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             env=dict(os.environ),
         )  # fmt: skip
-        proc.stdin.write(pickle.dumps(argtypes))
+        law = sim.fw.law
+        # Then the law's reset (its first call is the boot's, after the tick is compiled).
+        reset = (types.Array(types.boolean, 1, "C"),
+                 *(numba.typeof(a) for a in (law.P, law.C, law.S, law.K)))  # fmt: skip
+        proc.stdin.write(pickle.dumps((argtypes, reset)))
         proc.stdin.close()
     except (OSError, AttributeError, pickle.PicklingError):
         return  # no second process (or another numba): run_ticks compiles the step

@@ -215,7 +215,10 @@ class Law:
         self.S[:] = 0
         self.P[:] = 0.0
         self.P[P_POS] = self.C[C_COUNT] * AXIS_DEG_PER_COUNT
-        self.reset_control()
+        # reset_control()'s rows are zero with the arrays: only its pipeline indices remain
+        # (its kernel is not called here, so that a cold start compiles it in the second
+        # process, sim.loop._compile_plant_aside, not before the tick).
+        self.K[K_REF_I] = self.K[K_PIPE_I] = 0
 
     def resync(self) -> None:
         """Restart the observer on the encoder: no offset, no disturbance, the last raw
