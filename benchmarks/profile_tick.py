@@ -184,7 +184,13 @@ def main() -> int:
         for name, k in outside.most_common(8):
             print(f"  {100 * k / total:5.1f} %  {name}")
         if a.annotate:
-            s0, size, _, _ = next(s for s in syms if s[2] == a.annotate)
+            found = [s for s in syms if s[2] == a.annotate]
+            if not found:
+                names = ", ".join(sorted({s[2] for s in syms}))
+                print(f"profile_tick: --annotate {a.annotate!r}: not a kernel of the tick "
+                      f"({names})", file=sys.stderr)  # fmt: skip
+                return 2
+            s0, size, _, _ = found[0]
             dis = subprocess.run(
                 ["objdump", "-d", "--no-show-raw-insn", f"--start-address={s0}",
                  f"--stop-address={s0 + size}", str(t / "run_ticks.o")],
