@@ -72,7 +72,7 @@ def steady_rise_k(p_w: float, p_h: float, r_wh_k_w: float, r_ha_k_w: float) -> t
     return rise_h + p_w * r_wh_k_w, rise_h
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def network_advance(tw, th, p_w, p_h, t_a, net, at):
     """``(T_w, T_h)`` (degC) one step on from ``(tw, th)`` with the powers ``p_w``, ``p_h``
     (W) and the ambient ``t_a`` held; ``net[at:at + N_NET]``: ``network_zoh``'s numbers
@@ -86,7 +86,7 @@ def network_advance(tw, th, p_w, p_h, t_a, net, at):
     )  # fmt: skip
 
 
-@kernel(error_model="numpy")
+@kernel
 def network_step(temps, j, p_w, p_h, t_a, net):
     """Advance member ``j``'s ``temps[j] = (T_w, T_h)`` (degC) by one step with the powers
     ``p_w``, ``p_h`` (W) and the ambient ``t_a`` held; ``net``: ``network_zoh``'s (10,)."""
@@ -130,7 +130,7 @@ def protection_constants(safety: object, dt_s: float) -> np.ndarray:
     return tp
 
 
-@kernel(error_model="numpy")
+@kernel
 def thermal_protection(
     i_meas_a, vel_dps, enabled, r_ohm, emf_v_per_dps, fs, at, derate, rise, emf_rise
 ):

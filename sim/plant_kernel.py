@@ -10,8 +10,8 @@ end speed not exactly 0, and every boundary apart from its edge; the speeds' exa
 and Hermite tests, ``_speeds_leave``, only when a speed is within its gate's bound);
 anything else goes to ``step`` from the start, which decides the same (a step that ends in
 its start mode with a boundary near its edge: from its first pass's ``_excursion``
-test, the advance and end key passed in). Kernels use
-``error_model="numpy"``: no division-by-zero checks in the loops (no division here can be
+test, the advance and end key passed in). Kernels use numba's numpy error model
+(``kernel``'s default): no division-by-zero checks in the loops (no division here can be
 by zero on a valid bench; one would give inf/NaN instead of raising inside compiled code).
 
 The kernel is pure: the matrices come in as tables filled by ``Plant`` (a mode it has not
@@ -86,7 +86,7 @@ def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
     return np.array(values)
 
 
-@kernel(error_model="numpy")
+@kernel
 def key(i, w, tw, wp, duty, enable, kc):
     """Mode key of one state (``sim.plant``'s numbering of bridge, friction, contact and
     power-flow modes)."""
@@ -122,7 +122,7 @@ def key(i, w, tw, wp, duty, enable, kc):
     return (((bridge * 5 + fm) * 5 + fp) * 3 + contact) * 3 + flow
 
 
-@kernel(error_model="numpy")
+@kernel
 def _friction_region(v, band, stribeck):
     """0..4: below -stribeck, falling (negative side), band, falling (positive), above."""
     if v > band:
@@ -132,7 +132,7 @@ def _friction_region(v, band, stribeck):
     return 2
 
 
-@kernel(error_model="numpy")
+@kernel
 def _belt_torque(tw, rate, kc):
     """Belt torque on the platter (N*m) at twist ``tw`` and twist rate ``rate``."""
     half = kc[_HALF]
@@ -143,7 +143,7 @@ def _belt_torque(tw, rate, kc):
     return 0.0
 
 
-@kernel(error_model="numpy")
+@kernel
 def _flow_at_rest(torque_nm, tb, n, eta):
     """Power-flow mode of a motor at rest (w_m = 0) with belt torque ``tb`` != 0.
 
@@ -159,12 +159,12 @@ def _flow_at_rest(torque_nm, tb, n, eta):
     return 0 if (torque_nm > hi) == (tb > 0) else 1
 
 
-@kernel(error_model="numpy")
+@kernel
 def _region(v, edge):
     return 2 if v > edge else (0 if v < -edge else 1)
 
 
-@kernel(error_model="numpy")
+@kernel
 def hermite_leaves(p0, p1, m0, m1, edge):
     """Whether the cubic Hermite through (p0, slope m0) at s = 0 and (p1, m1) at s = 1 has
     an interior extremum in another region of ``(-inf, -edge), [-edge, edge], (edge, inf)``
@@ -208,7 +208,7 @@ def hermite_leaves(p0, p1, m0, m1, edge):
     return False
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def _apart(p0, p1, m0, m1, edge):
     """``hermite_leaves``' first test where it is called (a call costs more than the test):
     True if both ends are farther from both edges than the change over the step, so the
@@ -218,7 +218,7 @@ def _apart(p0, p1, m0, m1, edge):
     return (abs(abs(p0) - edge) > reach) & (abs(abs(p1) - edge) > reach)
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def gates(wmax, ai, tbmax, apmax, h, kc):
     """``_excursion``'s gates ``(motor, platter)`` (rad/s): the speeds below which a step of
     ``h`` may reach a friction band, from the largest current the armature can approach
@@ -233,7 +233,7 @@ def gates(wmax, ai, tbmax, apmax, h, kc):
     return kc[_WSM] + h * a_m, kc[_WSP] + h * a_p
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
     """Upper bounds of ``gates`` without a division: the same terms as magnitudes, with
     ``K_t max(a, ai)`` bounded by ``K_t (a + ai)`` and the coefficients summed and divided
@@ -245,7 +245,7 @@ def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
     return (kc[_UB_M0] + h * a_m) * _MARGIN, (kc[_UB_P0] + h * a_p) * _MARGIN
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d):
     """di/dt at both ends of a step in the mode of table row ``row`` (``rates[row, 2]``, the
     row of ``[A | B | e]`` of the current; the position's column is not used)."""
@@ -260,7 +260,7 @@ def _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d):
     )
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1):
     """The motor's and the platter's accelerations at both ends of a step in the mode of table
     row ``row`` (``rates[row, 0]``, ``rates[row, 1]``): ``(wd0, pd0, wd1, pd1)``."""
@@ -278,7 +278,7 @@ def _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1):
     )
 
 
-@kernel(error_model="numpy")
+@kernel
 def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     """Whether a boundary was crossed and re-crossed inside a step of ``h`` whose start and
     end share a mode (a velocity dipping into a friction band and out, a short trip through
@@ -331,7 +331,7 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     return _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc)
 
 
-@kernel(error_model="numpy")
+@kernel
 def _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc):
     """``_excursion``'s last test, on the motor and platter speeds (``w``, ``p``) with their
     rates (``wd``, ``pd``) at both ends, ``ai`` the larger end current's magnitude and
@@ -377,7 +377,7 @@ def _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc):
     )
 
 
-@kernel(error_model="numpy", inline="always")
+@kernel(inline="always")
 def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     """``step_members``' test of ``step``'s first pass, the step of ``h`` in mode ``k0``
     (>= 0) from ``(i0, w0, t0, p0)`` to ``(i1, w1, t1, p1)``. Returns ``(ok, sure, mode,
@@ -441,7 +441,7 @@ def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     return same, sure, mode, wd0, wd1, pd0, pd1, ai, tbmax
 
 
-@kernel(error_model="numpy")
+@kernel
 def _advance(phis, row, level, i, p, w, tw, wp, d):
     """The state after one sub-step of ``h / 2**level`` in the mode of table row ``row``:
     ``Phi [x; d; 1]`` (the position is the integral, so ``p`` adds to its row)."""
@@ -487,7 +487,7 @@ def _advance(phis, row, level, i, p, w, tw, wp, d):
     return ni, np_, nw, ntw, nwp
 
 
-@kernel(error_model="numpy")
+@kernel
 def step(
     i, p, w, tw, wp, d, en, start_key, levels, budget, slots, phis, rates, kc, level0, near,
     ni, np_, nw, ntw, nwp,
@@ -587,7 +587,7 @@ def step(
     return i, p, w, tw, wp, key_end, n_events, -1
 
 
-@kernel(error_model="numpy")
+@kernel
 def step_members(
     x, duty, enable, keys_in, known, start, group, slots, phis, rates, consts, levels,
     budget, out_x, out_keys, level0,

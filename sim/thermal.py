@@ -53,14 +53,14 @@ N_HEAT = N_NET + 9
 _MECH = 225  # sim.plant.MECH_MODES
 
 
-@kernel(error_model="numpy")
+@kernel
 def _bin(t_w, step, n_bins):
     """The rounded-temperature index of a winding at ``t_w`` (clipped to the model's range)."""
     b = int(np.floor((t_w - T_MIN_C) / step + 0.5))
     return min(max(b, 0), n_bins - 1)
 
 
-@kernel(error_model="numpy")
+@kernel
 def heat_groups(x, heat, group, keys, consts):
     """Put each member on the plant's parameter set of its winding's rounded temperature
     (``group[j]``; its known mechanical mode ``keys[j]`` recomputed with the new set).
@@ -82,7 +82,7 @@ def heat_groups(x, heat, group, keys, consts):
     return False
 
 
-@kernel(error_model="numpy")
+@kernel
 def _friction_power_w(w, cfg, j):
     """The motor's own friction loss (W) at speed ``w`` (rad/s): w * T_f(w) >= 0."""
     speed = abs(w)
@@ -90,7 +90,7 @@ def _friction_power_w(w, cfg, j):
     return speed * (cfg[j, H_BM] * speed + cfg[j, H_TCM] * sat)
 
 
-@kernel(error_model="numpy")
+@kernel
 def heat_advance(x, xn, heat):
     """The temperatures over one period from state ``x`` to ``xn`` (``(N, 5)``): the module
     docstring's powers, held, through the network's exact step."""
