@@ -87,8 +87,10 @@ class SolveIvpPlant:
         self.params = params
         self.h_s = h_s
         self.rtol, self.atol = rtol, atol
+        self.calls = 0
 
     def update(self, t_s, x, u):
+        self.calls += 1
         sol = solve_ivp(
             lambda t, y: derivative(t, y, _one_input(u), self.params),
             (t_s, t_s + self.h_s),
@@ -106,6 +108,11 @@ def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
     n = round(seconds / exp.bench.dt_s)
     out = {}
     logs = {}
+    # The tick-by-tick path's kernels loaded (compiled, the first time on a machine) before
+    # the clock starts: else the first chunk of the ZOH loop times the compiler.
+    warm = Simulation(exp.bench, seed=0, record_inputs=True)
+    _open_and_move(warm, exp)
+    warm.step(50)
     for name in ("zoh", "ivp"):
         # record_inputs: the tick-by-tick path, where the plant object can be swapped.
         sim = Simulation(exp.bench, seed=0, record_inputs=True)
@@ -122,6 +129,11 @@ def loop_ivp_vs_zoh(exp: Experiment, seconds: float) -> dict[str, float]:
         out[f"{name}_quietest_us"] = min(chunks)
         out[f"{name}_median_us"] = statistics.median(chunks)
         logs[name] = sim.log()
+        if name == "ivp":
+            out["ivp_calls"] = sim.plant.calls
+    # What the difference is of: the travel of each run (a run that never moved would
+    # differ by 0.0) and the solve_ivp steps taken.
+    out["travel_rev"] = min(np.ptp(log.motor_pos_rad) for log in logs.values()) / (2 * math.pi)
     diff = np.max(np.abs(logs["zoh"].motor_pos_rad - logs["ivp"].motor_pos_rad))
     out["max_diff_rev"] = diff / (2 * math.pi)
     out["ratio"] = out["ivp_us_per_tick"] / out["zoh_us_per_tick"]
@@ -387,6 +399,7 @@ def main() -> None:
     print(
         f"    ratio {r['ratio']:.0f}x overall, {r['ratio_median']:.0f}x median 50-tick chunk; "
         f"closed-loop motor-angle difference {r['max_diff_rev']:.2e} rev"
+        f" (travel {r['travel_rev']:.1f} rev, {r['ivp_calls']} solve_ivp steps)"
     )
     p = plant_only(exp20, args.ivp_s)
     print(
