@@ -3,11 +3,13 @@ change of the simulation is made against; docs/benchmarks.md, "Simulation").
 
 Each tree runs the scenarios below in its own fresh interpreter (the tree first on the
 path) and hashes every log column (values, shape and dtype) and the bytes the PC received;
-the two sets of hashes are then compared scenario by scenario. The 19 scenarios are those
+the two sets of hashes are then compared scenario by scenario. The scenarios are those
 of session 5's batch changes: Fig. 6/7/8, step_demo float / fixed / ADC noise, N = 8
 per-member gains and R, N = 8 fixed, N = 16 encoder + ADC noise, N = 256 float and fixed,
 sensor / following-error trips N = 1 and 5, over-current trips N = 1 and 4, the bus with
-brakes N = 1 and 3, heat N = 3, N = 7 per-member gains with encoder noise.
+brakes N = 1 and 3, heat N = 3, N = 7 per-member gains with encoder noise; and since
+session 8 (the plant step's sweep of batches of 16 or more sharing the plant) N = 32
+per-member gains with encoder noise and N = 20 with the bus model braking: 21.
 
 Usage::
 
@@ -71,6 +73,11 @@ S = {
         "thermal.model": True, "motor.r_ohm": [1.0, 1.2, 1.4]}),
     "n7_step_params": lambda: run(step, batch=7, overrides={
         "controller.position.kp_per_s": list(lin(8, 30, 7)), "encoder.noise_rms_lsb": 2.0}),
+    # batches of 16 members or more that share the plant (the plant step's sweep): the
+    # tuner's gains per member, and the bus model's periods and sub-steps while braking
+    "n32_gains": lambda: run(f82, batch=32, overrides={
+        "controller.position.kp_per_s": list(lin(8, 40, 32)), "encoder.noise_rms_lsb": 2.0}),
+    "n20_bus": lambda: run(fig6, batch=20, overrides={"supply.bus_model": True}),
 }
 
 

@@ -48,7 +48,13 @@ class _KernelCache(FunctionCache):
     file and needs none of those implementations, and with ``_nrt=False`` not the NRT either.
     A cache miss still refreshes (numba's compiler does, ``compiler.compile_extra``)."""
 
+    #: A callable ``(cache, sig, target_context)`` run before each load, or None
+    #: (``sim.loop._compile_plant_aside``: wait for the second compiling process's entry).
+    before_load = None
+
     def load_overload(self, sig, target_context):
+        if self.before_load is not None:
+            self.before_load(self, sig, target_context)
         with self._guard_against_spurious_io_errors():
             return self._load_overload(sig, target_context)
 

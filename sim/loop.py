@@ -694,7 +694,7 @@ class Simulation:
             plant_args = (
                 plant._last_mech, plant._group, plant._slots, plant._phis, plant._rates,
                 plant._consts, plant.event_levels, plant.split_budget, self.bus.kernel_args(),
-                self.heat.kernel_args(),
+                self.heat.kernel_args(), plant._scratch,
             )  # fmt: skip
             fw_args = (
                 fw._fs, fw._fi, fw._enabled, fw._fault, fw._oc_ticks, fw._prof, en_now,
@@ -805,6 +805,7 @@ class Simulation:
                     x, xn, d, en, plant._last_mech, known, start, plant._group, plant._slots,
                     plant._phis, plant._rates, plant._consts, plant.event_levels,
                     plant.split_budget, self.bus.kernel_args(), self._volt, self._sense_sign,
+                    plant._scratch,
                 )  # fmt: skip
                 plant.n_events += events
                 if need < 0:
@@ -1001,15 +1002,22 @@ _ASIDE_CODE = (
 )
 
 
+# How long the tick's compile waits for the second process's plant step when its typing
+# reaches the call first (``_compile_plant_aside``), before compiling the step itself (~1.5 s
+# with its callees in the cache already).
+_ASIDE_WAIT_S = 2.0
+
+
 def _compile_plant_aside(sim: Simulation) -> None:
-    """With an empty numba cache the first ``run_ticks`` of a process compiles for ~20 s;
-    the plant's step (``sim.supply.step_period``, ~5.6 s of it) depends on nothing else of
+    """With an empty numba cache the first ``run_ticks`` of a process compiles for ~15-20 s;
+    the plant's step (``sim.supply.step_period``, ~6-8 s of it) depends on nothing else of
     the tick, so a second process compiles it meanwhile (2 cores) and ``run_ticks`` loads it
-    from the cache when its typing reaches the call, ~6 s in (numba's dispatcher looks in the
-    cache before it compiles); then the law's ``reset_control`` (0.6 s), first called by the
-    boot after the tick is compiled. If the second process cannot start, or lags, the tick
-    compiles the step itself: the same machine code either way. Does nothing once the step
-    is in the cache (its index is read, the step not loaded)."""
+    from the cache when its typing reaches the call, ~8 s in (numba's dispatcher looks in the
+    cache before it compiles: if the second process is still at it then, the dispatcher waits
+    for its entry, at most ``_ASIDE_WAIT_S``); then the law's ``reset_control`` (0.6 s), first
+    called by the boot after the tick is compiled. If the second process cannot start, or
+    lags, the tick compiles the step itself: the same machine code either way. Does nothing
+    once the step is in the cache (its index is read, the step not loaded)."""
     if _ASIDE:
         return
     _ASIDE.append(None)
@@ -1030,13 +1038,13 @@ def _compile_plant_aside(sim: Simulation) -> None:
         types.boolean, types.int64,
         *(numba.typeof(v) for v in (plant._group, plant._slots, plant._phis, plant._rates,
                                     plant._consts, plant.event_levels, plant.split_budget,
-                                    sim.bus.kernel_args(), sim._volt, sim._sense_sign)),
+                                    sim.bus.kernel_args(), sim._volt, sim._sense_sign,
+                                    plant._scratch)),
     )  # fmt: skip
     cache = step_period._cache
     try:
-        if cache._index_key(argtypes, step_period.targetctx.codegen()) in (
-            cache._cache_file._load_index()
-        ):
+        key = cache._index_key(argtypes, step_period.targetctx.codegen())
+        if key in cache._cache_file._load_index():
             return  # in the cache: nothing to compile
         proc = subprocess.Popen(
             [sys.executable, "-c", _ASIDE_CODE.format(root=str(Path(__file__).parents[1]))],
@@ -1052,12 +1060,35 @@ def _compile_plant_aside(sim: Simulation) -> None:
     except (OSError, AttributeError, pickle.PicklingError):
         return  # no second process (or another numba): run_ticks compiles the step
     _ASIDE[0] = proc
+    cache.before_load = _awaiting(proc, key)
+
+
+def _awaiting(proc: Any, key: Any) -> Callable[[Any, Any, Any], None]:
+    """``before_load`` of the plant step's cache while the second process compiles it: a
+    load of that entry (``key``) waits until the process has written it, has ended, or
+    ``_ASIDE_WAIT_S`` has passed; other loads go on at once."""
+    import time
+
+    def before_load(cache: Any, sig: Any, target_context: Any) -> None:
+        if cache._index_key(sig, target_context.codegen()) != key:
+            return
+        deadline = time.monotonic() + _ASIDE_WAIT_S
+        while proc.poll() is None and time.monotonic() < deadline:
+            try:
+                if key in cache._cache_file._load_index():
+                    return
+            except (OSError, EOFError, ValueError):
+                pass  # (numba renames a finished index into place: read it again)
+            time.sleep(0.01)
+
+    return before_load
 
 
 def _end_aside() -> None:
     """``run_ticks`` is loaded: stop the second compiling process if it still runs (the tick
     has its step then; numba writes a cache entry by renaming a finished file, so a stopped
     writer leaves no half entry)."""
+    step_period._cache.before_load = None
     if _ASIDE and _ASIDE[0] is not None:
         proc, _ASIDE[0] = _ASIDE[0], None
         if proc.poll() is None:

@@ -531,6 +531,8 @@ class Plant:
         self.n_events = 0
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
+        # step_members' scratch: a batch sharing one parameter set sweeps its common case.
+        self._scratch = np.empty((11, self.n if self.n >= plant_kernel.SWEEP_MIN else 0))
         for g in range(len(self._sets)):
             self._preload(g)
 
@@ -611,7 +613,7 @@ class Plant:
             start, events, group, need = plant_kernel.step_members(
                 x, duty, enable, self._last_mech, known, start, self._group, self._slots,
                 self._phis, self._rates, self._consts, self.event_levels,
-                self.split_budget, xn, self._last_mech, 0,
+                self.split_budget, xn, self._last_mech, 0, self._scratch,
             )  # fmt: skip
             self.n_events += events
             if need < 0:

@@ -269,7 +269,7 @@ def _whole_verdict(j, x, xe, duty, d_eff, en_eff, v, v_mid, cfg, kc, h):
 @kernel
 def step_period(
     x, xn, duty, enable, keys, known, start, group, slots, phis, rates, consts, levels, budget,
-    bus, volt, sense_sign,
+    bus, volt, sense_sign, scratch,
 ):  # fmt: skip
     """One current-loop period of the plant (``x`` -> ``xn``, ``(N, 5)``) with the bridge's
     ``duty``/``enable`` held: ``sim.plant_kernel.step_members`` itself without the bus model
@@ -280,7 +280,7 @@ def step_period(
     ``start = next`` (the progress is kept in ``bus``'s ``sub``). ``bus = (v, locked, cfg,
     sub, xs, d_eff, en_eff, v_mid, v_sum, ...)`` (``Bus.kernel_args``); with the bus model,
     ``volt`` gets the period's mean bridge output and ``sense_sign`` 0 for a locked-out
-    member (its IS pins carry nothing).
+    member (its IS pins carry nothing). ``scratch``: ``step_members``'.
 
     A member's result does not depend on the others': the whole step is computed for
     every member (in one ``step_members`` call) when one may be quiet, each member keeps
@@ -292,7 +292,7 @@ def step_period(
     if v.shape[0] == 0:
         return step_members(
             x, duty, enable, keys, known, start, group, slots, phis, rates, consts, levels,
-            budget, xn, keys, np.int64(0),
+            budget, xn, keys, np.int64(0), scratch,
         )  # fmt: skip
     n = x.shape[0]
     n_sub = sub[SUB_N]
@@ -332,7 +332,7 @@ def step_period(
         # duty * v_mid (the members not quiet ignore theirs).
         nxt, ev, g, need = step_members(
             xn, d_eff, en_eff, keys, known, start, group, slots, phis, rates, consts, levels,
-            budget, xs, keys, np.int64(0),
+            budget, xs, keys, np.int64(0), scratch,
         )  # fmt: skip
         events += ev
         if need >= 0:
@@ -380,7 +380,7 @@ def step_period(
                     _inputs(j, xn, duty, enable, v, locked, cfg, d_eff, en_eff, v_mid, cfg[j, S_H])
             nxt, ev, g, need = step_members(
                 xn, d_eff, en_eff, keys, known or s > 0, start, group, slots, phis, rates,
-                consts, levels, budget, xs, keys, level,
+                consts, levels, budget, xs, keys, level, scratch,
             )  # fmt: skip
             events += ev
             if need >= 0:

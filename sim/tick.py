@@ -160,8 +160,9 @@ def run_ticks(
     multiple, enc_params, enc_block, adc_params, adc_block, adc_full, bridge_params,
     sense_sign, volt, duty, enable, counts, adc, bytes_per_s, values)`` (``values``: scratch
     for a telemetry frame's six float fields); ``plant = (keys, group,
-    slots, phis, rates, consts, levels, budget, bus, heat)`` (``bus``: ``sim.supply.Bus``'s
-    arrays, ``heat``: ``sim.thermal.Heat``'s); ``logs = (plant (5, capacity, N): the
+    slots, phis, rates, consts, levels, budget, bus, heat, sweep)`` (``bus``:
+    ``sim.supply.Bus``'s arrays, ``heat``: ``sim.thermal.Heat``'s, ``sweep``: the plant
+    step's scratch, ``sim.plant_kernel.step_members``); ``logs = (plant (5, capacity, N): the
     columns of ``sim.loop.PLANT_LOG``, signals (11 arrays of (capacity, N), the setpoint's
     three (capacity, 1)), voltage, bus_v, winding_c ((0, N) when constant), plant_consts
     (3, N): degrees per radian of the axis, the total ratio, degrees per radian)``;
@@ -174,7 +175,7 @@ def run_ticks(
     enc_fault, frozen_counts, lcg, angle_frames, diag_frames = enc_faults
     x0, x1, dt_s, multiple, enc_params, enc_block, adc_params, adc_block = sim[:8]
     adc_full, bridge_params, sense_sign, volt, duty, enable, counts, adc, bps, values = sim[8:]
-    keys, group, slots, phis, rates, consts, levels, budget, bus, heat = plant
+    keys, group, slots, phis, rates, consts, levels, budget, bus, heat, sweep = plant
     plog, signals, voltage, bus_log, winding_log, plant_consts = logs
     heat_on = heat[0].shape[0] > 0
     temps = heat[0]
@@ -336,12 +337,12 @@ def run_ticks(
                 if bus_fixed:  # step_period's first line, without its call (~5 % of N = 1)
                     start, events, g, need = step_members(
                         x, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group, slots,
-                        phis, rates, consts, levels, budget, xn, keys, np.int64(0),
+                        phis, rates, consts, levels, budget, xn, keys, np.int64(0), sweep,
                     )  # fmt: skip
                 else:
                     start, events, g, need = step_period(
                         x, xn, duty, enable, keys, ctx[CX_KNOWN] != 0, ctx[CX_MEMBER], group,
-                        slots, phis, rates, consts, levels, budget, bus, volt, sense_sign,
+                        slots, phis, rates, consts, levels, budget, bus, volt, sense_sign, sweep,
                     )  # fmt: skip
                 ctx[CX_EVENTS] += events
                 if need >= 0:

@@ -146,3 +146,54 @@ def test_a_kernels_division_by_zero_gives_numpys_values_and_never_raises():
     q, r, d = f(1.0, 0.0, 7, 0)
     assert q == float("inf") and r == 0 and d == 0
     assert f(7.0, 2.0, -7, 2) == (3.5, 1, -4)  # and Python's floored integer semantics
+
+
+class _Proc:
+    def __init__(self, alive: bool) -> None:
+        self.alive = alive
+
+    def poll(self):
+        return None if self.alive else 0
+
+
+class _Index:
+    """A cache whose index shows ``key`` from the ``after``-th read on."""
+
+    def __init__(self, key, after: int) -> None:
+        self.key, self.after, self.reads = key, after, 0
+        self._cache_file = self
+
+    def _index_key(self, sig, codegen):
+        return sig
+
+    def _load_index(self):
+        self.reads += 1
+        return {self.key: 1} if self.reads >= self.after else {}
+
+
+class _Target:
+    def codegen(self):
+        return None
+
+
+def test_the_tick_waits_for_the_second_process_entry_and_no_longer(monkeypatch):
+    # run_ticks' typing reaching the plant step while the second process still compiles it
+    # waits for that entry (then loads it) rather than compiling it a second time; any other
+    # signature loads at once; a process that has ended or a wait past _ASIDE_WAIT_S stops
+    # the wait (the step is then compiled here, as without the second process).
+    from sim import loop
+
+    waits = loop._awaiting(_Proc(alive=True), "plant")
+    index = _Index("plant", after=3)
+    waits(index, "plant", _Target())
+    assert index.reads == 3
+    other = _Index("plant", after=10**9)
+    waits(other, "another signature", _Target())
+    assert other.reads == 0
+    ended = _Index("plant", after=10**9)
+    loop._awaiting(_Proc(alive=False), "plant")(ended, "plant", _Target())
+    assert ended.reads == 0
+    monkeypatch.setattr(loop, "_ASIDE_WAIT_S", 0.05)
+    never = _Index("plant", after=10**9)
+    waits(never, "plant", _Target())
+    assert never.reads >= 1

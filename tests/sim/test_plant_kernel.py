@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -265,3 +266,86 @@ def test_the_excursion_gates_quick_bounds_are_never_below_the_gates(
     gates = plant_kernel.gates.py_func(wmax, ai, tbmax, apmax, h, kc)
     bounds = plant_kernel.gate_bounds.py_func(wmax, ai, tbmax, apmax, h, kc)
     assert bounds[0] >= gates[0] and bounds[1] >= gates[1]
+
+
+# A member of a 32-member Fig. 8 batch 0.4 s into its move (i, angle, w_m, twist, w_p) and
+# its duty: accelerating in one mode, every boundary apart (the sweep accepts it).
+_RUNNING = np.array([0.6424, 16.37, 82.31, 0.0010154, 0.2061])
+_RUNNING_DUTY = 0.0822
+
+
+def _two_steps(plant: Plant, x0: np.ndarray, duty: np.ndarray, enable: np.ndarray):
+    """Two steps from ``x0`` (the second with the modes known, as a run's are)."""
+    x = plant.update(0.0, x0, (duty, enable))
+    return plant.update(0.0, x, (duty, enable)), plant._last_mech.copy(), plant.n_events
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    spread=st.floats(0.0, 1.0), seed=st.integers(0, 2**32 - 1), off=st.integers(0, 8),
+    duty=st.floats(-0.2, 0.4), gap=st.booleans(),
+)  # fmt: skip
+def test_the_sweep_of_a_batch_is_the_member_loop_bit_for_bit(spread, seed, off, duty, gap):
+    # step_members sweeps the common case of a batch sharing its parameters (_sweep, on
+    # columns); the member loop alone (no scratch) must give the same floats, end modes and
+    # event counts: members around one state, some in other modes (spread, a belt in its
+    # gap, bridges disabled), some at rest.
+    rng = np.random.default_rng(seed)
+    n = 40
+    x0 = _RUNNING + spread * rng.standard_normal((n, N_X)) * np.array([1.0, 1.0, 20.0, 1e-4, 0.1])
+    if gap:  # a belt in its backlash gap
+        x0[: n // 4, 3] = 0.0
+    x0[rng.random(n) < 0.1, 2] = 0.0
+    d = np.clip(duty + 0.1 * spread * rng.standard_normal(n), -1.0, 1.0)
+    en = np.ones(n, dtype=bool)
+    en[:off] = False
+    swept = Plant(PlantParams(), n, DT_S)
+    alone = Plant(PlantParams(), n, DT_S)
+    alone._scratch = np.empty((11, 0))
+    xs, ks, es = _two_steps(swept, x0, d, en)
+    xa, ka, ea = _two_steps(alone, x0, d, en)
+    assert np.array_equal(xs.view(np.int64), xa.view(np.int64))
+    assert np.array_equal(ks, ka) and es == ea
+
+
+def test_the_sweep_takes_the_members_of_the_shared_mode():
+    # The sweep is exercised (not skipped): members in one mode away from every edge are
+    # all accepted by it, in the scratch's row 10.
+    n = 32
+    plant = Plant(PlantParams(), n, DT_S)
+    x0 = _RUNNING + 1e-6 * np.arange(n)[:, None]
+    _two_steps(plant, x0, np.full(n, _RUNNING_DUTY), np.ones(n, dtype=bool))
+    assert plant_kernel.SWEEP_MIN <= n
+    assert np.all(plant._scratch[10] == 1.0)
+    small = Plant(PlantParams(), plant_kernel.SWEEP_MIN - 1, DT_S)
+    assert small._scratch.shape == (11, 0)
+
+
+_CONFIGS = Path(__file__).resolve().parents[2] / "bench_configs"
+
+
+@pytest.mark.parametrize(
+    "name, config, batch, overrides",
+    [
+        # the tuner's batch: gains per member, the plant shared; encoder noise on
+        ("gains", "fig8.toml", 24, {"controller.position.kp_per_s": list(np.linspace(8, 40, 24)),
+                                    "encoder.noise_rms_lsb": 2.0}),
+        # the bus model's exact period and its sub-steps (sim.supply.step_period), braking
+        ("bus", "fig6.toml", 20, {"supply.bus_model": True}),
+    ],
+)  # fmt: skip
+def test_runs_with_and_without_the_sweep_are_the_same(monkeypatch, name, config, batch, overrides):
+    # Whole runs through the compiled tick: the plant's sweep (a batch of SWEEP_MIN or more
+    # members) changes no bit of the log nor of the PC's bytes.
+    from sim.config import load_experiment
+    from sim.loop import LOG_FIELDS, run
+
+    exp = load_experiment(_CONFIGS / config)
+    exp = dataclasses.replace(exp, duration_s=min(exp.duration_s, 0.6))
+    swept = run(exp, batch=batch, overrides=overrides)
+    monkeypatch.setattr(plant_kernel, "SWEEP_MIN", 10**9)  # Plant's scratch: (11, 0)
+    alone = run(exp, batch=batch, overrides=overrides)
+    for f in LOG_FIELDS:
+        np.testing.assert_array_equal(getattr(swept.log, f), getattr(alone.log, f), err_msg=f)
+    assert swept.pc_bytes == alone.pc_bytes and swept.firmware_counters == alone.firmware_counters
+    assert np.ptp(swept.log.motor_pos_rad) > 1.0  # the axis moved
