@@ -8,7 +8,10 @@ import numpy as np
 import pytest
 
 from sim import loop
-from sim.bridge import read_adc
+from sim.bridge import (
+    N_PW, PW_FAULT, PW_HELD, PW_OFFSET, PW_OFFSET_NEG, PW_RIPPLE, PW_SAMPLE, PW_SETTLE, PW_TAU,
+    read_adc,
+)  # fmt: skip
 from sim.params import CurrentSenseParams
 from sim.reproduce import experiments
 
@@ -18,7 +21,15 @@ L_H, F_PWM = 0.6e-3, 20e3
 
 
 def _read(i_a, duty, volt, sample=0.5, offset_a=0.0, settle_s=0.0, sign=None):
-    table = np.array([[offset_a, sample, 1.0 / (L_H * F_PWM), settle_s * F_PWM, 0.0]])
+    # One member's row of pwm_sense_table, every column set (the kernel reads them all).
+    table = np.zeros((1, N_PW))
+    table[0, PW_OFFSET] = table[0, PW_OFFSET_NEG] = offset_a
+    table[0, PW_SAMPLE] = sample
+    table[0, PW_RIPPLE] = 1.0 / (L_H * F_PWM)
+    table[0, PW_SETTLE] = settle_s * F_PWM
+    table[0, PW_TAU] = 0.0  # no RC low-pass on the pin
+    table[0, PW_FAULT] = 0.0  # no injected fault
+    table[0, PW_HELD] = -1.0
     out = np.zeros(1, dtype=np.int64)
     sign = np.sign(duty) if sign is None else sign
     read_adc(
