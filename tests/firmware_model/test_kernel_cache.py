@@ -197,3 +197,48 @@ def test_the_tick_waits_for_the_second_process_entry_and_no_longer(monkeypatch):
     never = _Index("plant", after=10**9)
     waits(never, "plant", _Target())
     assert never.reads >= 1
+
+
+_IN_BOUNDS = """
+import dataclasses, sys, warnings
+warnings.simplefilter("ignore")
+from pathlib import Path
+from sim.config import load_experiment
+from sim.loop import run
+B = Path({root!r}) / "bench_configs"
+fig6, fig8, step = (load_experiment(B / f) for f in ("fig6.toml", "fig8.toml", "step_demo.toml"))
+cut = dataclasses.replace
+runs = [
+    # a batch the plant sweeps, both noises; the bus and heat models with parameters per
+    # member; the fixed-point law; an over-current trip
+    run(cut(fig8, duration_s=0.6), batch=20,
+        overrides={{"encoder.noise_rms_lsb": 2.0, "current_sense.noise_rms_lsb": 1.5}}),
+    run(cut(fig6, duration_s=0.6), batch=3, overrides={{
+        "supply.bus_model": True, "thermal.model": True, "motor.r_ohm": [1.0, 1.2, 1.4]}}),
+    run(cut(step, duration_s=0.4), overrides={{"servo.arithmetic": "fixed"}}),
+    run(cut(fig6, duration_s=0.6), overrides={{"safety.over_current_a": 5.05}}),
+]
+print("ok", [len(r.log) for r in runs])
+"""
+
+
+def test_the_compiled_tick_stays_within_its_arrays(tmp_path):
+    """The kernels run without bounds checks: an index past an array's end reads or writes
+    whatever memory follows (a test's table one column short once read a NaN that way). With
+    ``NUMBA_BOUNDSCHECK=1`` (and a cache of its own) numba checks every index and raises
+    instead: a batch the plant sweeps, the bus and heat models, the fixed-point law and a
+    trip run through. ~40 s (every kernel compiled with its checks)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {
+        **os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path),
+        "NUMBA_BOUNDSCHECK": "1",
+    }  # fmt: skip
+    out = subprocess.run(
+        [sys.executable, "-c", _IN_BOUNDS.format(root=str(ROOT))],
+        capture_output=True, text=True, env=env,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "ok [300, 300, 200, 300]", out.stdout
