@@ -14,7 +14,7 @@ log's loops; ``step_members`` holds ``_advance`` and its copy of ``key``).
 Usage::
 
     python3 benchmarks/profile_tick.py [--batch 256] [--duration 2] [--seconds 3]
-        [--fixed] [--tree .] [--annotate SYMBOL]
+        [--fixed] [--spread] [--tree .] [--annotate SYMBOL]
 
 ``--annotate`` prints the hottest instructions of one kernel (``objdump``).
 """
@@ -36,6 +36,7 @@ _CHILD = r"""
 import dataclasses, os, sys, warnings
 warnings.simplefilter("ignore")
 tree, batch, duration, fixed, out = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4] == "1", sys.argv[5]
+spread = sys.argv[6] == "1"
 sys.path.insert(0, tree)
 from pathlib import Path
 from sim.config import load_experiment
@@ -57,7 +58,9 @@ def _cached_object(dispatcher, symbol):
 exp = load_experiment(Path(tree) / "bench_configs" / "fig8.toml")
 exp = dataclasses.replace(exp, duration_s=duration)
 batch = None if batch == "1" else int(batch)
-over = {"servo.arithmetic": "fixed"} if fixed else None
+over = {"servo.arithmetic": "fixed"} if fixed else {}
+if spread:  # a Monte-Carlo batch: a parameter set per member (the motor's R, 1.0-1.6 ohm)
+    over["motor.r_ohm"] = [1.0 + 0.6 * k / max(1, batch - 1) for k in range(batch)]
 run(exp, batch=batch, overrides=over)
 for sig, cres in st.run_ticks.overloads.items():
     # the overload of this arithmetic: S (the law's state) of int64 for the fixed law
@@ -111,6 +114,10 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=2.0, help="simulated s of each run")
     ap.add_argument("--seconds", type=float, default=3.0, help="how long perf samples")
     ap.add_argument("--fixed", action="store_true", help="the fixed-point law")
+    ap.add_argument(
+        "--spread", action="store_true",
+        help="a parameter set per member (motor R 1.0-1.6 ohm): the Monte-Carlo path",
+    )  # fmt: skip
     ap.add_argument("--tree", default=str(Path(__file__).resolve().parents[1]))
     ap.add_argument("--annotate", metavar="SYMBOL", help="e.g. sim.plant_kernel._excursion")
     a = ap.parse_args()
@@ -121,7 +128,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         t = Path(tmp)
         args = [sys.executable, "-c", _CHILD, a.tree, str(a.batch), str(a.duration),
-                "1" if a.fixed else "0", tmp]  # fmt: skip
+                "1" if a.fixed else "0", tmp, "1" if a.spread else "0"]  # fmt: skip
         child = subprocess.Popen(args)
         try:
             for _ in range(1200):  # a first run after a change compiles (~20 s)

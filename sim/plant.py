@@ -519,7 +519,7 @@ class Plant:
             self._sets = [self.co]
             self._group = np.zeros(self.n, dtype=np.int64)
         else:
-            self._sets = [Coefficients.from_params(params.member(k)) for k in range(self.n)]
+            self._sets = [Coefficients.from_params(m) for m in params.members()]
             self._group = np.arange(self.n, dtype=np.int64)
         self._consts = np.stack(
             [plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s) for co in self._sets]

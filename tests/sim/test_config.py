@@ -422,3 +422,26 @@ def test_cross_field_errors_name_the_wrong_key(tmp_path):
     f = _bench_with(tmp_path, "")
     f.write_text(f.read_text().replace("voltage_v = 24.0", "voltage_v = 20.0"))
     _one_line(lambda: load_bench(f), "[controller.current] supply_v = 24.0", "[supply] gives 20.0")
+
+
+def test_members_of_a_valid_batch_are_its_arrays_picked_as_floats():
+    # PlantParams.member(k) copies without checking again (each check holds element by
+    # element); what it gives is what dataclasses.replace with the checks would give.
+    import dataclasses
+
+    base = sim_params.PlantParams()
+    motor = dataclasses.replace(base.motor, r_ohm=np.array([1.0, 1.3, 1.6]), l_h=0.7e-3)
+    belt = dataclasses.replace(base.belt, damping_nm_s_rad=np.array([0.01, 0.02, 0.03]))
+    params = dataclasses.replace(base, motor=motor, belt=belt)
+    members = params.members()
+    assert len(members) == 3
+    for k, m in enumerate(members):
+        want = dataclasses.replace(
+            base,
+            motor=dataclasses.replace(base.motor, r_ohm=float(motor.r_ohm[k]), l_h=0.7e-3),
+            belt=dataclasses.replace(base.belt, damping_nm_s_rad=float(belt.damping_nm_s_rad[k])),
+        )
+        assert m == want and params.member(k) == want
+        assert type(m.motor.r_ohm) is float and m.batch_size() is None
+        assert m.gearbox is params.gearbox  # a table without arrays is shared, not copied
+    assert base.members() == [base]
