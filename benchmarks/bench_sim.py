@@ -11,7 +11,9 @@ to the simulated time given), encoder noise on, telemetry framed every tick and 
 the simulated PC (``RunResult.telemetry_arrays``):
 
 1. one 20 s run, N = 1 (real-time factor; median of 5 in a process, after one warm-up run);
-2. batch N = 256, 2 s (member-ticks per second; median of 3), float and fixed-point law;
+2. batch N = 256, 2 s (member-ticks per second; median of 3), float and fixed-point law, and
+   the float law with a parameter set per member (a Monte-Carlo study's batch: the motor's
+   R from 1.0 to 1.6 ohm);
 3. a fresh process: import, loading the compiled kernels, first run (this tree only);
 4. whole commands as a user runs them: ``tune bench_configs/paper_bench.toml`` and
    ``reproduce`` (wall time of the process, median of ``--cmd-repeat``);
@@ -201,6 +203,9 @@ run(dataclasses.replace(fig8, duration_s=0.1), batch=2, overrides={{"servo.arith
 out = {{"n1_s": timed(one, repeat=5)}}
 out["float_s"] = timed(short, batch={batch!r})
 out["fixed_s"] = timed(short, batch={batch!r}, overrides={{"servo.arithmetic": "fixed"}})
+spread = {{"motor.r_ohm": [1.0 + 0.6 * k / max(1, {batch!r} - 1) for k in range({batch!r})]}}
+run(short, batch={batch!r}, overrides=spread)  # its modes' matrices, met once per process
+out["spread_s"] = timed(short, batch={batch!r}, overrides=spread)
 print(json.dumps(out))
 """
 
@@ -256,33 +261,38 @@ def paired(
         print(f"    round {r + 1}/{rounds} done ({_load()})", flush=True)
     ticks = batch * round(batch_s / 0.002)
 
-    def row(m: dict[str, float]) -> tuple[float, float, float, float]:
+    def row(m: dict[str, float]) -> tuple[float, float, float, float, float]:
         return (
             20.0 / m["n1_s"],
             ticks / m["float_s"],
             ticks / m["fixed_s"],
+            ticks / m["spread_s"],
             m["fixed_s"] / m["float_s"],
         )
 
     print(
         f"| tree | 20 s run N = 1 (x real time) | N = {batch} float (member-ticks/s) | "
-        f"N = {batch} fixed (member-ticks/s) | fixed / float time |"
+        f"N = {batch} fixed (member-ticks/s) | N = {batch}, parameters per member "
+        "(member-ticks/s) | fixed / float time |"
     )
-    print("|---|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|")
     for name in trees:
         rows = [row(m) for m in results[name]]
         med = [statistics.median(c) for c in zip(*rows, strict=True)]
-        print(f"| {name} | {med[0]:,.0f} | {med[1]:,.0f} | {med[2]:,.0f} | {med[3]:.2f} |")
+        print(
+            f"| {name} | {med[0]:,.0f} | {med[1]:,.0f} | {med[2]:,.0f} | {med[3]:,.0f} | "
+            f"{med[4]:.2f} |"
+        )
     b = list(trees)[-1]  # this tree, against each reference
     for a in list(trees)[:-1]:
         ratios = [
-            [nb / na for na, nb in zip(row(x), row(y), strict=True)][:3]
+            [nb / na for na, nb in zip(row(x), row(y), strict=True)][:4]
             for x, y in zip(results[a], results[b], strict=True)
         ]
         med = [statistics.median(c) for c in zip(*ratios, strict=True)]
         print(
             f"| {b} / {a} (median of per-round ratios) | {med[0]:.2f}x | {med[1]:.2f}x | "
-            f"{med[2]:.2f}x | |"
+            f"{med[2]:.2f}x | {med[3]:.2f}x | |"
         )
 
 
