@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -131,6 +131,17 @@ class Coefficients:
             inv_n=f(1.0 / (p.gearbox.ratio * p.belt.ratio)),
             diode_in=bool(p.supply.bus_model),
         )
+
+    def members(self, n: int) -> list[Coefficients]:
+        """The coefficients of each of the ``n`` members (floats) of a batch's (``(N,)``
+        arrays where its parameters differ): the floats ``from_params`` gives for each
+        member's parameters (``PlantParams.member``), every coefficient being computed
+        element by element (``tests/sim/test_plant.py`` checks it)."""
+        varying = [f.name for f in fields(self) if isinstance(getattr(self, f.name), np.ndarray)]
+        if not varying:  # the batch's arrays are parameters no coefficient takes
+            return [self] * n
+        columns = [getattr(self, name).tolist() for name in varying]
+        return [replace(self, **dict(zip(varying, row, strict=True))) for row in zip(*columns)]
 
 
 def _friction_piece(region: int, tc: float, wb: float, ts: float, ws: float) -> tuple[float, float]:
@@ -519,7 +530,7 @@ class Plant:
             self._sets = [self.co]
             self._group = np.zeros(self.n, dtype=np.int64)
         else:
-            self._sets = [Coefficients.from_params(m) for m in params.members()]
+            self._sets = self.co.members(self.n)
             self._group = np.arange(self.n, dtype=np.int64)
         self._consts = np.stack(
             [plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s) for co in self._sets]
@@ -533,8 +544,7 @@ class Plant:
         self._last_mech = np.zeros(self.n, dtype=np.int64)
         # step_members' scratch: a batch sharing one parameter set sweeps its common case.
         self._scratch = np.empty((11, self.n if self.n >= plant_kernel.SWEEP_MIN else 0))
-        for g in range(len(self._sets)):
-            self._preload(g)
+        self._preload_all()
 
     def phi(self, key: int, level: int = 0, member: int = 0) -> np.ndarray:
         """``Phi`` (5, 7) of mode ``key`` over ``h_s / 2**level`` for ``member``."""
@@ -568,6 +578,21 @@ class Plant:
     def _reserve(self, rows: int) -> None:
         """Room for ``rows`` more modes in the tables (grown by doubling)."""
         self._phis, self._rates = _with_room(self._phis, self._rates, self._n_loaded, rows)
+
+    def _preload_all(self) -> None:
+        """``_preload`` of every parameter set of a new plant, the tables grown once."""
+        shared = [mode_tables(co, self.h_s, self.event_levels) for co in self._sets]
+        self._reserve(sum(len(t.rows) for t in shared))
+        row = self._n_loaded
+        for g, tables in enumerate(shared):
+            if tables.rows:
+                keys, src = list(tables.rows), list(tables.rows.values())
+                end = row + len(keys)
+                self._phis[row:end] = tables.phis[src]
+                self._rates[row:end] = tables.rates[src]
+                self._slots[g, keys] = np.arange(row, end)
+                row = end
+        self._n_loaded = row
 
     def _preload(self, group: int) -> None:
         """Every mode of parameter set ``group`` that an earlier plant with the same

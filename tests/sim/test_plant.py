@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
 from sim import drivetrain
@@ -342,3 +344,49 @@ def test_friction_law_pieces_are_the_physics_function():
         slope, offset = _friction_piece(region, co.tcm, co.wbm, co.tsm, co.wsm)
         expected = friction_torque_nm(w, co.tcm, co.wbm, 0.0, co.tsm, co.wsm)
         assert slope * w + offset == pytest.approx(float(expected), abs=1e-15)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.booleans())
+def test_a_batch_s_coefficients_are_each_member_s_bit_for_bit(seed, stiction):
+    # Plant takes a Monte-Carlo batch's parameter sets from the batch's coefficient arrays
+    # (Coefficients.members) instead of from each member's parameters: the same floats.
+    rng = np.random.default_rng(seed)
+    n = 7
+
+    def spread(v: float) -> np.ndarray:
+        return v * rng.uniform(0.7, 1.3, n)
+
+    base = PlantParams()
+    coulomb, band = spread(0.004), spread(0.1)
+    motor = dataclasses.replace(
+        base.motor, r_ohm=spread(1.2), l_h=spread(0.6e-3), kt_nm_a=spread(0.0145),
+        ke_v_s_rad=spread(0.0145), j_kgm2=spread(1.2e-5), viscous_nm_s_rad=spread(2e-6),
+        coulomb_nm=coulomb, coulomb_band_rad_s=band,
+        # stiction on for some members (at least Coulomb, its Stribeck speed above the band)
+        stiction_nm=np.where(rng.random(n) < 0.5, coulomb * rng.uniform(1.2, 2.0, n), 0.0)
+        if stiction else 0.0,
+        stribeck_rad_s=band * rng.uniform(3.0, 8.0, n) if stiction else 0.0,
+    )  # fmt: skip
+    params = dataclasses.replace(
+        base, motor=motor,
+        supply=dataclasses.replace(base.supply, voltage_v=24.0 * rng.uniform(0.8, 1.15, n)),
+        belt=dataclasses.replace(base.belt, stiffness_nm_rad=spread(base.belt.stiffness_nm_rad),
+                                 damping_nm_s_rad=spread(base.belt.damping_nm_s_rad)),
+        gearbox=dataclasses.replace(base.gearbox, backlash_deg=spread(base.gearbox.backlash_deg),
+                                    efficiency=rng.uniform(0.6, 0.9, n)),
+        platter=dataclasses.replace(base.platter, j_kgm2=spread(base.platter.j_kgm2)),
+        bridge=dataclasses.replace(base.bridge, current_limit_a=spread(base.bridge.current_limit_a)),
+    )  # fmt: skip
+    batch = Coefficients.from_params(params).members(n)
+    alone = [Coefficients.from_params(params.member(k)) for k in range(n)]
+    for a, b in zip(batch, alone, strict=True):
+        for f in dataclasses.fields(a):
+            x, y = getattr(a, f.name), getattr(b, f.name)
+            assert type(x) is type(y) and (x == y), (f.name, x, y)
+        assert a == b and hash(a) == hash(b)  # the key of the shared mode tables
+    # A batch whose arrays no coefficient takes (a brake resistor per member): n the same.
+    brakes = dataclasses.replace(
+        base, supply=dataclasses.replace(base.supply, brake_resistor_ohm=spread(4.0))
+    )
+    assert Coefficients.from_params(brakes).members(n) == [Coefficients.from_params(base)] * n
