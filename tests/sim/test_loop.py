@@ -351,7 +351,7 @@ def test_run_hands_over_the_same_batch_log_as_log(tmp_path):
 
 
 def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
-    from sim.bridge import adc_counts, apply_bridge, quantise_duty, read_adc, sensed_current_a
+    from sim.bridge import N_PW, adc_counts, apply_bridge, quantise_duty, read_adc, sensed_current_a
     from sim.params import BridgeParams, CurrentSenseParams
 
     n = 5000
@@ -375,7 +375,7 @@ def test_compiled_bridge_and_adc_compute_the_vectorised_rules():
         got = np.empty(n, dtype=np.int64)
         read_adc(
             x, sign, a_per_lsb, noise, draw, (1 << sense.adc_bits) - 1, got,
-            (np.zeros(len(x)), np.zeros(len(x)), np.zeros((0, 4))),
+            (np.zeros(len(x)), np.zeros(len(x)), np.zeros((0, N_PW))),
         )  # fmt: skip
         if draw.size:
             want = adc_counts(sensed_current_a(x[:, 0], d, enable), sense, noise * draw)
