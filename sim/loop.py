@@ -1077,8 +1077,8 @@ def _awaiting(proc: Any, key: Any) -> Callable[[Any, Any, Any], None]:
             try:
                 if key in cache._cache_file._load_index():
                     return
-            except (OSError, EOFError, ValueError):
-                pass  # (numba renames a finished index into place: read it again)
+            except Exception:  # an index being replaced, or unreadable: read it again
+                pass  # (numba renames a finished index into place; the wait is bounded)
             time.sleep(0.01)
 
     return before_load

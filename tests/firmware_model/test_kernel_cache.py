@@ -159,8 +159,8 @@ class _Proc:
 class _Index:
     """A cache whose index shows ``key`` from the ``after``-th read on."""
 
-    def __init__(self, key, after: int) -> None:
-        self.key, self.after, self.reads = key, after, 0
+    def __init__(self, key, after: int, broken: int = 0) -> None:
+        self.key, self.after, self.reads, self.broken = key, after, 0, broken
         self._cache_file = self
 
     def _index_key(self, sig, codegen):
@@ -168,6 +168,8 @@ class _Index:
 
     def _load_index(self):
         self.reads += 1
+        if self.reads <= self.broken:
+            raise EOFError("an index being written")
         return {self.key: 1} if self.reads >= self.after else {}
 
 
@@ -193,6 +195,9 @@ def test_the_tick_waits_for_the_second_process_entry_and_no_longer(monkeypatch):
     ended = _Index("plant", after=10**9)
     loop._awaiting(_Proc(alive=False), "plant")(ended, "plant", _Target())
     assert ended.reads == 0
+    unreadable = _Index("plant", after=4, broken=2)  # the first reads fail: no traceback
+    waits(unreadable, "plant", _Target())
+    assert unreadable.reads == 4
     monkeypatch.setattr(loop, "_ASIDE_WAIT_S", 0.05)
     never = _Index("plant", after=10**9)
     waits(never, "plant", _Target())
