@@ -544,7 +544,7 @@ class Plant:
         self._last_mech = np.zeros(self.n, dtype=np.int64)
         # step_members' scratch: a batch sharing one parameter set sweeps its common case.
         self._scratch = np.empty((11, self.n if self.n >= plant_kernel.SWEEP_MIN else 0))
-        self._preload_all()
+        self._preload(range(len(self._sets)))
 
     def phi(self, key: int, level: int = 0, member: int = 0) -> np.ndarray:
         """``Phi`` (5, 7) of mode ``key`` over ``h_s / 2**level`` for ``member``."""
@@ -572,42 +572,33 @@ class Plant:
             slots[:g] = self._slots
             self._consts, self._slots = consts, slots
         self._consts[g] = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s)
-        self._preload(g)
+        self._preload([g])
         return g
 
     def _reserve(self, rows: int) -> None:
         """Room for ``rows`` more modes in the tables (grown by doubling)."""
         self._phis, self._rates = _with_room(self._phis, self._rates, self._n_loaded, rows)
 
-    def _preload_all(self) -> None:
-        """``_preload`` of every parameter set of a new plant, the tables grown once."""
-        shared = [mode_tables(co, self.h_s, self.event_levels) for co in self._sets]
-        self._reserve(sum(len(t.rows) for t in shared))
+    def _preload(self, groups: Sequence[int]) -> None:
+        """Every mode of the parameter sets ``groups`` that an earlier plant with the same
+        coefficients loaded (``mode_tables``) and this one has not, into this plant's tables
+        at once (grown once for them all: a Monte-Carlo batch's new plant has N sets)."""
+        todo = []
+        for g in groups:
+            shared = mode_tables(self._sets[g], self.h_s, self.event_levels)
+            keys = [k for k in shared.rows if self._slots[g, k] < 0]
+            if keys:
+                todo.append((g, shared, keys))
+        self._reserve(sum(len(keys) for _, _, keys in todo))
         row = self._n_loaded
-        for g, tables in enumerate(shared):
-            if tables.rows:
-                keys, src = list(tables.rows), list(tables.rows.values())
-                end = row + len(keys)
-                self._phis[row:end] = tables.phis[src]
-                self._rates[row:end] = tables.rates[src]
-                self._slots[g, keys] = np.arange(row, end)
-                row = end
+        for g, shared, keys in todo:
+            src = [shared.rows[k] for k in keys]
+            end = row + len(keys)
+            self._phis[row:end] = shared.phis[src]
+            self._rates[row:end] = shared.rates[src]
+            self._slots[g, keys] = np.arange(row, end)
+            row = end
         self._n_loaded = row
-
-    def _preload(self, group: int) -> None:
-        """Every mode of parameter set ``group`` that an earlier plant with the same
-        coefficients loaded (``mode_tables``), into this plant's tables at once."""
-        shared = mode_tables(self._sets[group], self.h_s, self.event_levels)
-        keys = [k for k in shared.rows if self._slots[group, k] < 0]
-        if not keys:
-            return
-        src = np.array([shared.rows[k] for k in keys])
-        self._reserve(len(keys))
-        row = self._n_loaded
-        self._phis[row : row + len(keys)] = shared.phis[src]
-        self._rates[row : row + len(keys)] = shared.rates[src]
-        self._slots[group, keys] = np.arange(row, row + len(keys))
-        self._n_loaded = row + len(keys)
 
     def _load(self, group: int, key: int) -> None:
         """Put mode ``key``'s matrices (parameter set ``group``) into the step's tables."""
