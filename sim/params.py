@@ -687,32 +687,19 @@ class PlantParams:
         """The parameters of batch member ``k`` with every array replaced by a float.
 
         Not validated again: each check of a table holds for every member of its arrays
-        (they compare element by element), so a member of valid parameters is valid (a
-        Monte-Carlo batch's ``Plant`` takes every member, ``members``: N = 256 cost 0.2 ms
-        each through ``dataclasses.replace`` and the checks, ~40 % of a 2 s run)."""
-        return self._member(k, self._arrays())
-
-    def members(self) -> list[PlantParams]:
-        """``member(k)`` for every member of the batch (one, the parameters, without arrays)."""
-        arrays = self._arrays()
-        return [self._member(k, arrays) for k in range(self.batch_size() or 1)]
-
-    def _arrays(self) -> dict[str, dict[str, np.ndarray]]:
-        """The ``(N,)`` arrays of each table: ``{table: {field: array}}``."""
-        out: dict[str, dict[str, np.ndarray]] = {}
+        (they compare element by element), so a member of valid parameters is valid
+        (through ``dataclasses.replace`` and the checks a member cost 0.2 ms: N = 256 of
+        them were ~40 % of a 2 s Monte-Carlo run when ``Plant`` built its sets this way)."""
+        parts = {}
         for f in fields(self):
             part = getattr(self, f.name)
-            for g in fields(part):
-                v = getattr(part, g.name)
-                if isinstance(v, np.ndarray):
-                    out.setdefault(f.name, {})[g.name] = v
-        return out
-
-    def _member(self, k: int, arrays: dict[str, dict[str, np.ndarray]]) -> PlantParams:
-        parts = {
-            table: _unchecked(getattr(self, table), {g: float(v[k]) for g, v in values.items()})
-            for table, values in arrays.items()
-        }
+            changes = {
+                g.name: float(getattr(part, g.name)[k])
+                for g in fields(part)
+                if isinstance(getattr(part, g.name), np.ndarray)
+            }
+            if changes:
+                parts[f.name] = _unchecked(part, changes)
         return _unchecked(self, parts)
 
 
