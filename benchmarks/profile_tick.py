@@ -35,8 +35,8 @@ from pathlib import Path
 _CHILD = r"""
 import dataclasses, os, sys, warnings
 warnings.simplefilter("ignore")
-tree, batch, duration, fixed, out = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4] == "1", sys.argv[5]
-spread = sys.argv[6] == "1"
+tree, batch, duration, out = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[5]
+fixed, spread = sys.argv[4] == "1", sys.argv[6] == "1"
 sys.path.insert(0, tree)
 from pathlib import Path
 from sim.config import load_experiment

@@ -141,7 +141,8 @@ class Coefficients:
         if not varying:  # the batch's arrays are parameters no coefficient takes
             return [self] * n
         columns = [getattr(self, name).tolist() for name in varying]
-        return [replace(self, **dict(zip(varying, row, strict=True))) for row in zip(*columns)]
+        rows = zip(*columns, strict=True)
+        return [replace(self, **dict(zip(varying, row, strict=True))) for row in rows]
 
 
 def _friction_piece(region: int, tc: float, wb: float, ts: float, ws: float) -> tuple[float, float]:

@@ -15,8 +15,9 @@ one parameter set has that common case swept first for the members in the mode m
 share (``_sweep``: the same expressions on columns of the states, without a branch, so the
 compiler evaluates several members per instruction, four with AVX2; ~2.3x less time for
 that part at N = 256), and the member loop takes the members it accepted as they are.
-Kernels use numba's numpy error model (``kernel``'s default): no division-by-zero checks in the loops (no division here can be
-by zero on a valid bench; one would give inf/NaN instead of raising inside compiled code).
+Kernels use numba's numpy error model (``kernel``'s default): no division-by-zero checks in
+the loops (no division here can be by zero on a valid bench; one would give inf/NaN
+instead of raising inside compiled code).
 
 The kernel is pure: the matrices come in as tables filled by ``Plant`` (a mode it has not
 seen yet is returned as ``need`` and the caller loads it and calls again), and the event

@@ -9,7 +9,15 @@ import pytest
 
 from sim import loop
 from sim.bridge import (
-    N_PW, PW_FAULT, PW_HELD, PW_OFFSET, PW_OFFSET_NEG, PW_RIPPLE, PW_SAMPLE, PW_SETTLE, PW_TAU,
+    N_PW,
+    PW_FAULT,
+    PW_HELD,
+    PW_OFFSET,
+    PW_OFFSET_NEG,
+    PW_RIPPLE,
+    PW_SAMPLE,
+    PW_SETTLE,
+    PW_TAU,
     read_adc,
 )  # fmt: skip
 from sim.params import CurrentSenseParams

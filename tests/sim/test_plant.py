@@ -376,7 +376,9 @@ def test_a_batch_s_coefficients_are_each_member_s_bit_for_bit(seed, stiction):
         gearbox=dataclasses.replace(base.gearbox, backlash_deg=spread(base.gearbox.backlash_deg),
                                     efficiency=rng.uniform(0.6, 0.9, n)),
         platter=dataclasses.replace(base.platter, j_kgm2=spread(base.platter.j_kgm2)),
-        bridge=dataclasses.replace(base.bridge, current_limit_a=spread(base.bridge.current_limit_a)),
+        bridge=dataclasses.replace(
+            base.bridge, current_limit_a=spread(base.bridge.current_limit_a)
+        ),
     )  # fmt: skip
     batch = Coefficients.from_params(params).members(n)
     alone = [Coefficients.from_params(params.member(k)) for k in range(n)]
