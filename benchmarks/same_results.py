@@ -9,7 +9,9 @@ per-member gains and R, N = 8 fixed, N = 16 encoder + ADC noise, N = 256 float a
 sensor / following-error trips N = 1 and 5, over-current trips N = 1 and 4, the bus with
 brakes N = 1 and 3, heat N = 3, N = 7 per-member gains with encoder noise; and since
 session 8 (the plant step's sweep of batches of 16 or more sharing the plant) N = 32
-per-member gains with encoder noise and N = 20 with the bus model braking: 21.
+per-member gains with encoder noise and N = 20 with the bus model braking; and since
+session 9 (the sweep of batches with a parameter set per member) N = 24 with R per member
+and encoder noise, N = 20 with heat, N = 20 with the bus and a brake resistor per member: 24.
 
 Usage::
 
@@ -78,6 +80,15 @@ S = {
     "n32_gains": lambda: run(f82, batch=32, overrides={
         "controller.position.kp_per_s": list(lin(8, 40, 32)), "encoder.noise_rms_lsb": 2.0}),
     "n20_bus": lambda: run(fig6, batch=20, overrides={"supply.bus_model": True}),
+    # batches of 16 or more with a parameter set per member (the sweep from each member's
+    # coefficient rows): a Monte-Carlo spread of R, heat moving members between sets, the
+    # bus model with a brake resistor per member
+    "n24_spread": lambda: run(f82, batch=24, overrides={
+        "motor.r_ohm": list(lin(1.0, 1.6, 24)), "encoder.noise_rms_lsb": 2.0}),
+    "n20_heat": lambda: run(f8s, batch=20, overrides={
+        "thermal.model": True, "motor.r_ohm": list(lin(1.0, 1.4, 20))}),
+    "n20_bus_brake": lambda: run(fig6, batch=20, overrides={
+        "supply.bus_model": True, "supply.brake_resistor_ohm": list(lin(2.0, 8.0, 20))}),
 }
 
 

@@ -543,8 +543,9 @@ class Plant:
         self.n_events = 0
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
-        # step_members' scratch: a batch sharing one parameter set sweeps its common case.
-        self._scratch = np.empty((11, self.n if self.n >= plant_kernel.SWEEP_MIN else 0))
+        # step_members' scratch: a batch of SWEEP_MIN or more sweeps its common case (a set
+        # per member: from each member's columns, which start empty, NaN tags).
+        self._scratch = plant_kernel.sweep_scratch(self.n)
         self._preload(range(len(self._sets)))
 
     def phi(self, key: int, level: int = 0, member: int = 0) -> np.ndarray:

@@ -10,11 +10,11 @@ end speed not exactly 0, and every boundary apart from its edge; the speeds' exa
 and Hermite tests, ``_speeds_leave``, only when a speed is within its gate's bound);
 anything else goes to ``step`` from the start, which decides the same (a step that ends in
 its start mode with a boundary near its edge: from its first pass's ``_excursion``
-test, the advance and end key passed in). A batch of ``SWEEP_MIN`` or more members sharing
-one parameter set has that common case swept first for the members in the mode most of them
-share (``_sweep``: the same expressions on columns of the states, without a branch, so the
-compiler evaluates several members per instruction, four with AVX2; ~2.3x less time for
-that part at N = 256), and the member loop takes the members it accepted as they are.
+test, the advance and end key passed in). A batch of ``SWEEP_MIN`` or more members has that
+common case swept first for every member in its known mode (``_sweep``: the same
+expressions on rows of a scratch, each member's coefficients kept there between steps,
+without a branch, so the compiler evaluates several members per instruction, four with
+AVX2), and the member loop takes the members it accepted as they are.
 Kernels use numba's numpy error model (``kernel``'s default): no division-by-zero checks in
 the loops (no division here can be by zero on a valid bench; one would give inf/NaN
 instead of raising inside compiled code).
@@ -44,7 +44,7 @@ from firmware_model.kernel_cache import kernel
 
 __all__ = [
     "N_CONSTS", "SWEEP_MIN", "hermite_leaves", "key", "pack_consts", "step", "step_members",
-    "warm_up",
+    "sweep_scratch", "warm_up",
 ]  # fmt: skip
 
 # Bridge modes (sim.plant's numbering).
@@ -252,14 +252,20 @@ def gate_bounds(wmax, ai, tbmax, apmax, h, kc):
 
 
 @kernel(inline="always")
-def _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d):
-    """di/dt at both ends of a step in the mode of table row ``row`` (``rates[row, 2]``, the
-    row of ``[A | B | e]`` of the current; the position's column is not used)."""
+def _current_row(rates, row):
+    """The row of ``[A | B | e]`` of di/dt in the mode of table row ``row`` (``rates[row,
+    2]``) as the 6 scalars ``_current_rates`` takes (the position's column is not used)."""
     # Scalar loads, no views (a view costs reference counting in numba).
-    c0, c2, c3, c4, c5, c6 = (
+    return (
         rates[row, 2, 0], rates[row, 2, 2], rates[row, 2, 3], rates[row, 2, 4],
         rates[row, 2, 5], rates[row, 2, 6],
     )  # fmt: skip
+
+
+@kernel(inline="always")
+def _current_rates(ci, i0, w0, t0, p0, i1, w1, t1, p1, d):
+    """di/dt at both ends of a step with ``ci = _current_row(...)``."""
+    c0, c2, c3, c4, c5, c6 = ci
     return (
         c0 * i0 + c2 * w0 + c3 * t0 + c4 * p0 + c5 * d + c6,
         c0 * i1 + c2 * w1 + c3 * t1 + c4 * p1 + c5 * d + c6,
@@ -267,15 +273,21 @@ def _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d):
 
 
 @kernel(inline="always")
-def _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1):
-    """The motor's and the platter's accelerations at both ends of a step in the mode of table
-    row ``row`` (``rates[row, 0]``, ``rates[row, 1]``): ``(wd0, pd0, wd1, pd1)``."""
-    v0, v2, v3, v4, v6 = (
-        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6]
+def _speed_row(rates, row):
+    """The rows of ``[A | B | e]`` of the motor's and the platter's accelerations in the mode
+    of table row ``row`` (``rates[row, 0]``, ``rates[row, 1]``) as the 10 scalars
+    ``_speed_rates`` takes (the position's and the duty's columns are 0)."""
+    return (
+        rates[row, 0, 0], rates[row, 0, 2], rates[row, 0, 3], rates[row, 0, 4], rates[row, 0, 6],
+        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6],
     )  # fmt: skip
-    q0, q2, q3, q4, q6 = (
-        rates[row, 1, 0], rates[row, 1, 2], rates[row, 1, 3], rates[row, 1, 4], rates[row, 1, 6]
-    )  # fmt: skip
+
+
+@kernel(inline="always")
+def _speed_rates(sv, i0, w0, t0, p0, i1, w1, t1, p1):
+    """The motor's and the platter's accelerations at both ends of a step with ``sv =
+    _speed_row(...)``: ``(wd0, pd0, wd1, pd1)``."""
+    v0, v2, v3, v4, v6, q0, q2, q3, q4, q6 = sv
     return (
         v0 * i0 + v2 * w0 + v3 * t0 + v4 * p0 + v6,
         q0 * i0 + q2 * w0 + q3 * t0 + q4 * p0 + q6,
@@ -315,11 +327,11 @@ def _excursion(i0, w0, t0, p0, i1, w1, t1, p1, d, bridge_on, rates, row, h, kc):
     if bridge_on:
         # The chip's current limitation: a current that rises past I_CL and falls back
         # within the step (the back-EMF catching up) was held at I_CL meanwhile.
-        di0, di1 = _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d)
+        di0, di1 = _current_rates(_current_row(rates, row), i0, w0, t0, p0, i1, w1, t1, p1, d)
         m0, m1 = di0 * h, di1 * h
         if not _apart(i0, i1, m0, m1, icl) and hermite_leaves(i0, i1, m0, m1, icl):
             return True
-    wd0, pd0, wd1, pd1 = _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1)
+    wd0, pd0, wd1, pd1 = _speed_rates(_speed_row(rates, row), i0, w0, t0, p0, i1, w1, t1, p1)
     if d0 > 0.0 and d1 > 0.0:
         # In contact at both ends (same side): the belt torque's sign sets the power flow
         # through the gearbox; a sign change and back inside the step is a hidden switch.
@@ -384,7 +396,7 @@ def _speeds_leave(w0, w1, p0, p1, wd0, wd1, pd0, pd1, ai, tbmax, h, kc):
 
 
 @kernel(inline="always")
-def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
+def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, ci, sv, h, kc):
     """``step_members``' test of ``step``'s first pass, the step of ``h`` in mode ``k0``
     (>= 0) from ``(i0, w0, t0, p0)`` to ``(i1, w1, t1, p1)``. Returns ``(ok, sure, mode,
     wd0, wd1, pd0, pd1, ai, tbmax)``: ``mode`` if the step ends in ``k0`` with an end speed
@@ -426,9 +438,9 @@ def _stays(k0, i0, w0, t0, p0, i1, w1, t1, p1, d, en, rates, row, h, kc):
     d0 = at0 - half
     d1 = at1 - half
     same &= (abs(d0) > reach) & (abs(d1) > reach)
-    di0, di1 = _current_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1, d)
+    di0, di1 = _current_rates(ci, i0, w0, t0, p0, i1, w1, t1, p1, d)
     same &= (k0 >= _MECH) | _apart(i0, i1, di0 * h, di1 * h, icl)
-    wd0, pd0, wd1, pd1 = _speed_rates(rates, row, i0, w0, t0, p0, i1, w1, t1, p1)
+    wd0, pd0, wd1, pd1 = _speed_rates(sv, i0, w0, t0, p0, i1, w1, t1, p1)
     sh = half if t0 > 0.0 else -half
     tb0 = k * (t0 - sh) + c * r0
     tb1 = k * (t1 - sh) + c * r1
@@ -586,51 +598,163 @@ def step(
 
 # Members from which step_members sweeps the common case over the whole batch first.
 SWEEP_MIN = 16
+# step_members' scratch, ``(blocks, MEMBER_ROWS * _LANES)``: member j is lane j % _LANES of
+# block j // _LANES, and row r of a block its entries [r * _LANES, (r + 1) * _LANES). A row's
+# offset is a constant: the compiler sees that the sweep's stores and loads, all in one
+# block, never overlap (rows of runtime length would need a check for each pair, more than
+# it makes, and the loop would stay scalar). Rows: 0-4 a member's state before the step,
+# 5-9 after, 10 whether the sweep accepted it, then the coefficients of the mode it was
+# last swept in, kept between steps and copied again when its mode, parameter set or level
+# changes (so the sweep reads rows, not ~80 scattered table entries a member).
+_LANES = 64
+_DONE = 10
+_TAG = 11  # (group * n_modes + key) * 64 + level0 of a member's rows below; NaN: none
+_C_PHI = 12  # 30 rows: _coefficients(phis, row, level0)
+_C_CUR = _C_PHI + 30  # 6: _current_row(rates, row)
+_C_SPD = _C_CUR + 6  # 10: _speed_row(rates, row)
+_C_K = _C_SPD + 10  # N_CONSTS: consts[group]
+MEMBER_ROWS = _C_K + N_CONSTS
+
+
+def sweep_scratch(n: int) -> np.ndarray:
+    """``step_members``' scratch for ``n`` members (no sweep below ``SWEEP_MIN``)."""
+    blocks = -(-n // _LANES) if n >= SWEEP_MIN else 0
+    return np.full((blocks, MEMBER_ROWS * _LANES), np.nan)
 
 
 @kernel
-def _columns(x, keys, cols):
-    """The states ``x`` (``(N, 5)``) as columns ``cols[0:5]`` (``step_members``' scratch),
-    and the key most members share (Boyer and Moore's majority
-    vote: the key of more than half of them if there is one, else one of the keys)."""
-    k = keys[0]
-    votes = 0
+def _columns(x, keys, group, level0, slots, phis, rates, consts, s):
+    """The states ``x`` (``(N, 5)``) into rows 0-4 of the scratch ``s``, and each member's
+    coefficient rows for its mode ``keys[j]`` (bridge on) at ``level0`` in parameter set
+    ``group[j]``, copied only where they are not already (``_TAG``); a NaN tag where that
+    mode is not in the tables yet (the member loop loads it)."""
+    n_modes = slots.shape[1]
     for j in range(x.shape[0]):
-        cols[0, j] = x[j, 0]
-        cols[1, j] = x[j, 1]
-        cols[2, j] = x[j, 2]
-        cols[3, j] = x[j, 3]
-        cols[4, j] = x[j, 4]
-        kj = keys[j]
-        if votes == 0:
-            k = kj
-        votes += 1 if kj == k else -1
-    return k
+        f = s[j // _LANES]
+        ln = j % _LANES
+        for q in range(5):
+            f[q * _LANES + ln] = x[j, q]
+        g = group[j]
+        k = keys[j]
+        tag = float((g * n_modes + k) * 64 + level0)
+        if f[_TAG * _LANES + ln] == tag:
+            continue
+        row = slots[g, k]
+        if row < 0:
+            f[_TAG * _LANES + ln] = np.nan
+            continue
+        m = _C_PHI
+        for r in range(5):
+            for col in (0, 2, 3, 4, 5, 6):
+                f[m * _LANES + ln] = phis[row, level0, r, col]
+                m += 1
+        for col in (0, 2, 3, 4, 5, 6):
+            f[m * _LANES + ln] = rates[row, 2, col]
+            m += 1
+        for r in range(2):
+            for col in (0, 2, 3, 4, 6):
+                f[m * _LANES + ln] = rates[row, r, col]
+                m += 1
+        for q in range(consts.shape[1]):
+            f[(_C_K + q) * _LANES + ln] = consts[g, q]
+        f[_TAG * _LANES + ln] = tag
+
+
+@kernel(inline="always")
+def _coefficients_at(f, ln):
+    """Lane ``ln``'s ``_coefficients`` from its block ``f`` (``_columns``)."""
+    return (
+        f[_C_PHI * _LANES + ln], f[(_C_PHI + 1) * _LANES + ln],
+        f[(_C_PHI + 2) * _LANES + ln], f[(_C_PHI + 3) * _LANES + ln],
+        f[(_C_PHI + 4) * _LANES + ln], f[(_C_PHI + 5) * _LANES + ln],
+        f[(_C_PHI + 6) * _LANES + ln], f[(_C_PHI + 7) * _LANES + ln],
+        f[(_C_PHI + 8) * _LANES + ln], f[(_C_PHI + 9) * _LANES + ln],
+        f[(_C_PHI + 10) * _LANES + ln], f[(_C_PHI + 11) * _LANES + ln],
+        f[(_C_PHI + 12) * _LANES + ln], f[(_C_PHI + 13) * _LANES + ln],
+        f[(_C_PHI + 14) * _LANES + ln], f[(_C_PHI + 15) * _LANES + ln],
+        f[(_C_PHI + 16) * _LANES + ln], f[(_C_PHI + 17) * _LANES + ln],
+        f[(_C_PHI + 18) * _LANES + ln], f[(_C_PHI + 19) * _LANES + ln],
+        f[(_C_PHI + 20) * _LANES + ln], f[(_C_PHI + 21) * _LANES + ln],
+        f[(_C_PHI + 22) * _LANES + ln], f[(_C_PHI + 23) * _LANES + ln],
+        f[(_C_PHI + 24) * _LANES + ln], f[(_C_PHI + 25) * _LANES + ln],
+        f[(_C_PHI + 26) * _LANES + ln], f[(_C_PHI + 27) * _LANES + ln],
+        f[(_C_PHI + 28) * _LANES + ln], f[(_C_PHI + 29) * _LANES + ln],
+    )  # fmt: skip
+
+
+@kernel(inline="always")
+def _rates_at(f, ln):
+    """Lane ``ln``'s ``_current_row`` and ``_speed_row`` from its block ``f``."""
+    return (
+        f[_C_CUR * _LANES + ln], f[(_C_CUR + 1) * _LANES + ln],
+        f[(_C_CUR + 2) * _LANES + ln], f[(_C_CUR + 3) * _LANES + ln],
+        f[(_C_CUR + 4) * _LANES + ln], f[(_C_CUR + 5) * _LANES + ln],
+    ), (
+        f[_C_SPD * _LANES + ln], f[(_C_SPD + 1) * _LANES + ln],
+        f[(_C_SPD + 2) * _LANES + ln], f[(_C_SPD + 3) * _LANES + ln],
+        f[(_C_SPD + 4) * _LANES + ln], f[(_C_SPD + 5) * _LANES + ln],
+        f[(_C_SPD + 6) * _LANES + ln], f[(_C_SPD + 7) * _LANES + ln],
+        f[(_C_SPD + 8) * _LANES + ln], f[(_C_SPD + 9) * _LANES + ln],
+    )  # fmt: skip
+
+
+@kernel(inline="always")
+def _consts_at(f, ln):
+    """Lane ``ln``'s coefficients (``consts[group[j]]``) from its block ``f``, as a tuple
+    indexed like ``consts``' rows."""
+    return (
+        f[_C_K * _LANES + ln], f[(_C_K + 1) * _LANES + ln],
+        f[(_C_K + 2) * _LANES + ln], f[(_C_K + 3) * _LANES + ln],
+        f[(_C_K + 4) * _LANES + ln], f[(_C_K + 5) * _LANES + ln],
+        f[(_C_K + 6) * _LANES + ln], f[(_C_K + 7) * _LANES + ln],
+        f[(_C_K + 8) * _LANES + ln], f[(_C_K + 9) * _LANES + ln],
+        f[(_C_K + 10) * _LANES + ln], f[(_C_K + 11) * _LANES + ln],
+        f[(_C_K + 12) * _LANES + ln], f[(_C_K + 13) * _LANES + ln],
+        f[(_C_K + 14) * _LANES + ln], f[(_C_K + 15) * _LANES + ln],
+        f[(_C_K + 16) * _LANES + ln], f[(_C_K + 17) * _LANES + ln],
+        f[(_C_K + 18) * _LANES + ln], f[(_C_K + 19) * _LANES + ln],
+        f[(_C_K + 20) * _LANES + ln], f[(_C_K + 21) * _LANES + ln],
+        f[(_C_K + 22) * _LANES + ln], f[(_C_K + 23) * _LANES + ln],
+        f[(_C_K + 24) * _LANES + ln], f[(_C_K + 25) * _LANES + ln],
+        f[(_C_K + 26) * _LANES + ln], f[(_C_K + 27) * _LANES + ln],
+        f[(_C_K + 28) * _LANES + ln], f[(_C_K + 29) * _LANES + ln],
+        f[(_C_K + 30) * _LANES + ln], f[(_C_K + 31) * _LANES + ln],
+        f[(_C_K + 32) * _LANES + ln], f[(_C_K + 33) * _LANES + ln],
+        f[(_C_K + 34) * _LANES + ln],
+    )  # fmt: skip
 
 
 @kernel
-def _sweep(i0, p0, w0, t0, wp0, duty, enable, keys, k0, c, rates, row, h, kc, i1, p1, w1, t1,
-           wp1, done):  # fmt: skip
-    """``step_members``' common case for every member at once, start mode ``k0`` (its table
-    row ``row``, the step's coefficients ``c``): the end states into ``i1 ... wp1`` and
-    ``done[j]`` 1.0 if member j starts in ``k0`` (its known key, enabled, below I_CL) and
-    ``_stays`` accepts its step with both speeds beyond their gates' bounds (``ok`` and
-    ``sure``). The same expressions as the member loop's, on columns and with the mode
-    shared: no branch, so the compiler evaluates several members per instruction (SIMD)."""
-    icl = kc[_ICL]
-    for j in range(i0.shape[0]):
-        i, p, w, tw, wp = i0[j], p0[j], w0[j], t0[j], wp0[j]
-        d = duty[j]
-        en = enable[j]
-        ni, np_, nw, ntw, nwp = _apply(c, i, p, w, tw, wp, d)
-        i1[j] = ni
-        p1[j] = np_
-        w1[j] = nw
-        t1[j] = ntw
-        wp1[j] = nwp
-        ok, sure = _stays(k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, rates, row, h, kc)[:2]
-        accept = (keys[j] == k0) & en & (-icl < i) & (i < icl) & ok & sure
-        done[j] = 1.0 if accept else 0.0
+def _sweep(s, duty, enable, keys, scale, n):
+    """``step_members``' common case for every member at once: each member's step from its
+    known mode with its coefficient rows (``_columns``), the end states into rows 5-9 of
+    the scratch ``s`` and row 10 1.0 if the member is enabled, below I_CL, has its rows
+    (not a NaN tag) and ``_stays`` accepts its step with both speeds beyond their gates'
+    bounds (``ok`` and ``sure``). The member loop's expressions on rows: no branch, so the
+    compiler evaluates several members per instruction (SIMD; 4 with AVX2)."""
+    for b in range(s.shape[0]):
+        f = s[b]
+        j0 = b * _LANES
+        for ln in range(min(_LANES, n - j0)):
+            i, p, w = f[ln], f[_LANES + ln], f[2 * _LANES + ln]
+            tw, wp = f[3 * _LANES + ln], f[4 * _LANES + ln]
+            d = duty[j0 + ln]
+            en = enable[j0 + ln]
+            kc = _consts_at(f, ln)
+            ci, sv = _rates_at(f, ln)
+            ni, np_, nw, ntw, nwp = _apply(_coefficients_at(f, ln), i, p, w, tw, wp, d)
+            f[5 * _LANES + ln] = ni
+            f[6 * _LANES + ln] = np_
+            f[7 * _LANES + ln] = nw
+            f[8 * _LANES + ln] = ntw
+            f[9 * _LANES + ln] = nwp
+            h = kc[_H_S] * scale
+            k0 = keys[j0 + ln]
+            ok, sure = _stays(k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, ci, sv, h, kc)[:2]
+            icl = kc[_ICL]
+            tag = f[_TAG * _LANES + ln]
+            accept = (tag == tag) & en & (-icl < i) & (i < icl) & ok & sure
+            f[_DONE * _LANES + ln] = 1.0 if accept else 0.0
 
 
 @kernel
@@ -646,9 +770,9 @@ def step_members(
     mechanical modes of ``x`` if ``known`` (``x`` is the last ``out_x``). Returns ``(next,
     events, group, need)``: ``need`` = -1 when every member is done, else mode ``need`` of
     set ``group`` is missing and members from ``next`` on are still to do (``out_x[next]``
-    may have been written). ``scratch``: ``(11, N)`` for ``_sweep`` (the columns of the
-    states before and after, and whether it accepted each member), or ``(11, 0)``: no
-    sweep."""
+    may have been written). ``scratch``: ``sweep_scratch(N)`` (``_sweep``'s rows: the states
+    before and after, whether it accepted each member, the coefficients of each member's
+    mode kept between calls), or no block: no sweep."""
     events = 0
     # One parameter set (the common case): its views once, not per member.
     shared = consts.shape[0] == 1
@@ -660,29 +784,24 @@ def step_members(
     k_last = -1
     row_last = -1
     n = x.shape[0]
-    # A batch sharing one parameter set: the common case of the members in the mode most
-    # share swept at once (_sweep); the loop then takes each member it accepted as it is.
-    swept = shared and known and start == 0 and n >= SWEEP_MIN and levels > level0
-    swept = swept and budget > 0 and scratch.shape[1] >= n
-    k_sweep = -1
+    # The common case swept at once (_sweep, each member in its known mode); the loop then
+    # takes each member it accepted as it is.
+    swept = known and start == 0 and n >= SWEEP_MIN and levels > level0 and budget > 0
+    swept = swept and scratch.shape[0] * _LANES >= n
+    swept = swept and scratch.shape[1] == MEMBER_ROWS * _LANES
     if swept:
-        k_sweep = _columns(x, keys_in, scratch)
-        row = sl[k_sweep]
-        swept = row >= 0
-        if swept:
-            _sweep(
-                scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], duty, enable,
-                keys_in, k_sweep, _coefficients(phis, row, level0), rates, row, h_s, kc,
-                scratch[5], scratch[6], scratch[7], scratch[8], scratch[9], scratch[10],
-            )  # fmt: skip
+        _columns(x, keys_in, group, level0, slots, phis, rates, consts, scratch)
+        _sweep(scratch, duty, enable, keys_in, scale, n)
     for j in range(start, n):
-        if swept and scratch[10, j] != 0.0:
-            out_x[j, 0] = scratch[5, j]
-            out_x[j, 1] = scratch[6, j]
-            out_x[j, 2] = scratch[7, j]
-            out_x[j, 3] = scratch[8, j]
-            out_x[j, 4] = scratch[9, j]
-            out_keys[j] = k_sweep % _MECH
+        if swept and scratch[j // _LANES, _DONE * _LANES + j % _LANES] != 0.0:
+            f = scratch[j // _LANES]
+            ln = j % _LANES
+            out_x[j, 0] = f[5 * _LANES + ln]
+            out_x[j, 1] = f[6 * _LANES + ln]
+            out_x[j, 2] = f[7 * _LANES + ln]
+            out_x[j, 3] = f[8 * _LANES + ln]
+            out_x[j, 4] = f[9 * _LANES + ln]
+            out_keys[j] = keys_in[j] % _MECH
             continue
         if not shared:
             g = group[j]
@@ -715,8 +834,9 @@ def step_members(
             out_x[j, 3] = ntw
             out_x[j, 4] = nwp
             ok, sure, mode, wd0, wd1, pd0, pd1, ai, tbmax = _stays(
-                k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, rates, row, h_s, kc
-            )
+                k0, i, w, tw, wp, ni, nw, ntw, nwp, d, en, _current_row(rates, row),
+                _speed_row(rates, row), h_s, kc,
+            )  # fmt: skip
             if ok and (
                 sure or not _speeds_leave(w, nw, wp, nwp, wd0, wd1, pd0, pd1, ai, tbmax, h_s, kc)
             ):
@@ -754,5 +874,5 @@ def warm_up(event_levels: int = 20) -> None:
     step_members(
         x, np.zeros(1), np.ones(1, dtype=bool), ints, True, 0, ints,
         np.full((1, 1), -1, dtype=np.int64), np.empty((0, event_levels + 1, 5, 7)),
-        np.empty((0, 3, 7)), kc, event_levels, 1, np.empty((1, 5)), ints, 0, np.empty((11, 1)),
+        np.empty((0, 3, 7)), kc, event_levels, 1, np.empty((1, 5)), ints, 0, sweep_scratch(1),
     )  # fmt: skip

@@ -274,24 +274,46 @@ _RUNNING = np.array([0.6424, 16.37, 82.31, 0.0010154, 0.2061])
 _RUNNING_DUTY = 0.0822
 
 
-def _two_steps(plant: Plant, x0: np.ndarray, duty: np.ndarray, enable: np.ndarray):
-    """Two steps from ``x0`` (the second with the modes known, as a run's are)."""
+def _steps(plant: Plant, x0: np.ndarray, duty: np.ndarray, enable: np.ndarray):
+    """Three steps from ``x0`` (the later ones with the modes known, as a run's are: the
+    second fills the sweep's coefficient rows, the third finds most of them filled)."""
     x = plant.update(0.0, x0, (duty, enable))
+    x = plant.update(0.0, x, (duty, enable))
     return plant.update(0.0, x, (duty, enable)), plant._last_mech.copy(), plant.n_events
+
+
+def _done(plant: Plant) -> np.ndarray:
+    """Whether the last step's sweep accepted each member (its scratch's row ``_DONE``)."""
+    lanes = plant_kernel._LANES
+    rows = plant._scratch[:, plant_kernel._DONE * lanes : (plant_kernel._DONE + 1) * lanes]
+    return rows.ravel()[: plant.n]
+
+
+def _params(n: int, per_member: bool) -> PlantParams:
+    """The paper's plant, or with the motor's R per member (a Monte-Carlo batch: a
+    parameter set per member)."""
+    p = PlantParams()
+    if per_member:
+        r = np.linspace(1.0, 1.6, n)
+        p = dataclasses.replace(p, motor=dataclasses.replace(p.motor, r_ohm=r))
+    return p
 
 
 @settings(max_examples=60, deadline=None)
 @given(
     spread=st.floats(0.0, 1.0), seed=st.integers(0, 2**32 - 1), off=st.integers(0, 8),
-    duty=st.floats(-0.2, 0.4), gap=st.booleans(),
+    duty=st.floats(-0.2, 0.4), gap=st.booleans(), per_member=st.booleans(),
+    n=st.sampled_from([40, 70, 130]),
 )  # fmt: skip
-def test_the_sweep_of_a_batch_is_the_member_loop_bit_for_bit(spread, seed, off, duty, gap):
-    # step_members sweeps the common case of a batch sharing its parameters (_sweep, on
-    # columns); the member loop alone (no scratch) must give the same floats, end modes and
-    # event counts: members around one state, some in other modes (spread, a belt in its
-    # gap, bridges disabled), some at rest.
+def test_the_sweep_of_a_batch_is_the_member_loop_bit_for_bit(
+    spread, seed, off, duty, gap, per_member, n
+):
+    # step_members sweeps the common case of a batch (_sweep, each member in its known mode
+    # from its coefficient rows); the member loop alone (no scratch) must give the same
+    # floats, end modes and event counts: members around one state, some in other modes
+    # (spread, a belt in its gap, bridges disabled), some at rest; one parameter set or one
+    # per member; one scratch block or several, the last one partly used.
     rng = np.random.default_rng(seed)
-    n = 40
     x0 = _RUNNING + spread * rng.standard_normal((n, N_X)) * np.array([1.0, 1.0, 20.0, 1e-4, 0.1])
     if gap:  # a belt in its backlash gap
         x0[: n // 4, 3] = 0.0
@@ -299,26 +321,55 @@ def test_the_sweep_of_a_batch_is_the_member_loop_bit_for_bit(spread, seed, off, 
     d = np.clip(duty + 0.1 * spread * rng.standard_normal(n), -1.0, 1.0)
     en = np.ones(n, dtype=bool)
     en[:off] = False
-    swept = Plant(PlantParams(), n, DT_S)
-    alone = Plant(PlantParams(), n, DT_S)
-    alone._scratch = np.empty((11, 0))
-    xs, ks, es = _two_steps(swept, x0, d, en)
-    xa, ka, ea = _two_steps(alone, x0, d, en)
+    swept = Plant(_params(n, per_member), n, DT_S)
+    alone = Plant(_params(n, per_member), n, DT_S)
+    alone._scratch = plant_kernel.sweep_scratch(0)
+    xs, ks, es = _steps(swept, x0, d, en)
+    xa, ka, ea = _steps(alone, x0, d, en)
     assert np.array_equal(xs.view(np.int64), xa.view(np.int64))
     assert np.array_equal(ks, ka) and es == ea
 
 
-def test_the_sweep_takes_the_members_of_the_shared_mode():
+@pytest.mark.parametrize("per_member", [False, True])
+def test_the_sweep_takes_the_members_in_a_known_mode(per_member):
     # The sweep is exercised (not skipped): members in one mode away from every edge are
-    # all accepted by it, in the scratch's row 10.
-    n = 32
-    plant = Plant(PlantParams(), n, DT_S)
+    # all accepted by it, with a parameter set per member too.
+    n = 70
+    plant = Plant(_params(n, per_member), n, DT_S)
     x0 = _RUNNING + 1e-6 * np.arange(n)[:, None]
-    _two_steps(plant, x0, np.full(n, _RUNNING_DUTY), np.ones(n, dtype=bool))
+    _steps(plant, x0, np.full(n, _RUNNING_DUTY), np.ones(n, dtype=bool))
     assert plant_kernel.SWEEP_MIN <= n
-    assert np.all(plant._scratch[10] == 1.0)
+    assert np.all(_done(plant) == 1.0)
     small = Plant(PlantParams(), plant_kernel.SWEEP_MIN - 1, DT_S)
-    assert small._scratch.shape == (11, 0)
+    assert small._scratch.shape[0] == 0
+
+
+def test_a_member_s_rows_follow_its_parameter_set():
+    # The rows kept between steps are those of the member's set and mode: sim.thermal
+    # moves a member to another set between steps, and the sweep then takes the new set's
+    # coefficients (as the member loop alone does), not the rows it kept.
+    n = 32
+    base = PlantParams()
+    hot = dataclasses.replace(base, motor=dataclasses.replace(base.motor, r_ohm=1.5))
+    x0 = _RUNNING + 1e-6 * np.arange(n)[:, None]
+    d, en = np.full(n, _RUNNING_DUTY), np.ones(n, dtype=bool)
+
+    def third(sweep: bool, move: bool) -> np.ndarray:
+        plant = Plant(base, n, DT_S)
+        if not sweep:
+            plant._scratch = plant_kernel.sweep_scratch(0)
+        g = plant.add_group(sim_plant.Coefficients.from_params(hot))
+        x = plant.update(0.0, plant.update(0.0, x0, (d, en)), (d, en))
+        if move:
+            plant._group[::2] = g
+        x = plant.update(0.0, x, (d, en))
+        if sweep:
+            assert np.all(_done(plant) == 1.0)
+        return x
+
+    moved = third(True, True)
+    assert np.array_equal(moved.view(np.int64), third(False, True).view(np.int64))
+    assert not np.array_equal(moved[::2], third(True, False)[::2])
 
 
 _CONFIGS = Path(__file__).resolve().parents[2] / "bench_configs"
@@ -332,6 +383,12 @@ _CONFIGS = Path(__file__).resolve().parents[2] / "bench_configs"
                                     "encoder.noise_rms_lsb": 2.0}),
         # the bus model's exact period and its sub-steps (sim.supply.step_period), braking
         ("bus", "fig6.toml", 20, {"supply.bus_model": True}),
+        # a Monte-Carlo batch: the motor's R per member (a parameter set per member)
+        ("spread", "fig8.toml", 24, {"motor.r_ohm": list(np.linspace(1.0, 1.6, 24)),
+                                     "encoder.noise_rms_lsb": 2.0}),
+        # the winding's heat: members move to other parameter sets as they warm
+        ("heat", "fig8.toml", 20, {"thermal.model": True,
+                                   "motor.r_ohm": list(np.linspace(1.0, 1.4, 20))}),
     ],
 )  # fmt: skip
 def test_runs_with_and_without_the_sweep_are_the_same(monkeypatch, name, config, batch, overrides):
@@ -343,7 +400,7 @@ def test_runs_with_and_without_the_sweep_are_the_same(monkeypatch, name, config,
     exp = load_experiment(_CONFIGS / config)
     exp = dataclasses.replace(exp, duration_s=min(exp.duration_s, 0.6))
     swept = run(exp, batch=batch, overrides=overrides)
-    monkeypatch.setattr(plant_kernel, "SWEEP_MIN", 10**9)  # Plant's scratch: (11, 0)
+    monkeypatch.setattr(plant_kernel, "SWEEP_MIN", 10**9)  # Plant's scratch: no block
     alone = run(exp, batch=batch, overrides=overrides)
     for f in LOG_FIELDS:
         np.testing.assert_array_equal(getattr(swept.log, f), getattr(alone.log, f), err_msg=f)
