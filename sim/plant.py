@@ -27,8 +27,9 @@ plant objects only memoise their matrices. Only ``sim.loop`` owns the clock and 
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,7 @@ from sim import plant_kernel
 from sim.drivetrain import belt_torque_nm, load_factor
 from sim.motor import friction_torque_nm
 from sim.params import PlantParams
+from sim.plant_kernel import N_CONSTS
 
 __all__ = [
     "Coefficients",
@@ -141,8 +143,16 @@ class Coefficients:
         if not varying:  # the batch's arrays are parameters no coefficient takes
             return [self] * n
         columns = [getattr(self, name).tolist() for name in varying]
-        rows = zip(*columns, strict=True)
-        return [replace(self, **dict(zip(varying, row, strict=True))) for row in rows]
+        # Copies with the varying fields set (dataclasses.replace would run __init__ again
+        # for each, ~14 us a member; Coefficients has no __post_init__ to run).
+        fixed = {name: value for name, value in vars(self).items() if name not in varying}
+        out = []
+        for row in zip(*columns, strict=True):
+            co = object.__new__(Coefficients)
+            co.__dict__.update(fixed)
+            co.__dict__.update(zip(varying, row, strict=True))
+            out.append(co)
+        return out
 
 
 def _friction_piece(region: int, tc: float, wb: float, ts: float, ws: float) -> tuple[float, float]:
@@ -307,50 +317,93 @@ def _with_room(
     return new_phis, new_rates
 
 
-class _ModeTables:
-    """The matrices of the modes met so far for one parameter set, step and ladder depth,
-    shared by every ``Plant`` with those (runs of a tuner or a study build many plants with
-    the same coefficients): a plant starts with every mode an earlier one loaded, so its
-    compiled step does not stop to ask for them (``Plant._load``); the numbers are the
-    same whichever plant computed them (``zoh_ladder``, ``affine``)."""
+class _ModeStore:
+    """The rows of mode matrices of every parameter set (``phis`` ``(rows, levels + 1, 5,
+    7)``: ``Phi`` over ``h_s / 2**level``; ``rates`` ``(rows, 3, 7)``: the rows of ``[A | B |
+    e]`` of the motor and platter accelerations and of di/dt) for one ladder depth, in one
+    pair of arrays that plants pass to the compiled step as they are: a row, once added,
+    never changes, so a plant (or a Monte-Carlo batch's N sets) takes the rows earlier
+    plants computed by their index (``Plant._slots``), with no copy. Process-wide and
+    bounded (``mode_tables``); rows are added under a lock (runs may share a process)."""
 
     def __init__(self, levels: int) -> None:
-        self.rows: dict[int, int] = {}  # mode key -> row of phis / rates
+        self.levels = levels
         self.phis = np.empty((0, levels + 1, N_X, N_X + 2))
         self.rates = np.empty((0, 3, N_X + 2))
+        self.used = 0
 
-    def row(self, key: int, co: Coefficients, h_s: float, levels: int) -> int:
-        """The row of mode ``key``, computed the first time."""
-        r = self.rows.get(key)
-        if r is None:
-            r = len(self.rows)
-            self.phis, self.rates = _with_room(self.phis, self.rates, r, 1)
-            self.phis[r] = zoh_ladder(key, co, h_s, levels)
-            a, b, e = affine(key, co)
+    def add(self, key: int, co: Coefficients, h_s: float) -> int:
+        """A new row: mode ``key``'s matrices for ``co`` at step ``h_s``."""
+        ladder = zoh_ladder(key, co, h_s, self.levels)
+        a, b, e = affine(key, co)
+        with _STORE_LOCK:
+            r = self.used
+            phis, rates = _with_room(self.phis, self.rates, r, 1)
+            phis[r] = ladder
             for j, q in enumerate((VEL, PVEL, I_A)):
-                self.rates[r, j, :N_X] = a[q]
-                self.rates[r, j, N_X] = b[q]
-                self.rates[r, j, N_X + 1] = e[q]
-            self.rows[key] = r
-            _MODE_TABLES_ROWS[0] += 1
+                rates[r, j, :N_X] = a[q]
+                rates[r, j, N_X] = b[q]
+                rates[r, j, N_X + 1] = e[q]
+            # the arrays first, then the count: a reader never sees a row not yet written
+            self.phis, self.rates = phis, rates
+            self.used = r + 1
         return r
 
 
-# (coefficients, h_s, levels) -> their _ModeTables; bounded (~6 kB a mode at 20 levels).
+class _ModeTables:
+    """The modes met so far for one parameter set, step and ladder depth, as rows of a
+    ``_ModeStore``, shared by every ``Plant`` with those (runs of a tuner or a study build
+    many plants with the same coefficients): a plant starts with every mode an earlier one
+    loaded, so its compiled step does not stop to ask for them (``Plant._load``); the
+    numbers are the same whichever plant computed them (``zoh_ladder``, ``affine``)."""
+
+    def __init__(self, store: _ModeStore) -> None:
+        self.store = store
+        self.rows: dict[int, int] = {}  # mode key -> row of store.phis / store.rates
+        self._arrays = (np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64))
+
+    def row(self, key: int, co: Coefficients, h_s: float) -> int:
+        """The row of mode ``key``, computed the first time."""
+        r = self.rows.get(key)
+        if r is None:
+            r = self.rows[key] = self.store.add(key, co, h_s)
+        return r
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The modes met (keys) and their rows, as arrays."""
+        if self._arrays[0].shape[0] != len(self.rows):
+            keys = np.fromiter(self.rows.keys(), dtype=np.int64, count=len(self.rows))
+            rows = np.fromiter(self.rows.values(), dtype=np.int64, count=len(self.rows))
+            self._arrays = (keys, rows)
+        return self._arrays
+
+
+# (coefficients, h_s, levels) -> their _ModeTables, rows of _STORES[levels]; bounded (~6 kB
+# a row at 20 levels): past _STORE_MAX_ROWS a new store starts, and plants made before keep
+# the one they have (its rows stay valid; they add their new modes to it).
 _MODE_TABLES: dict[tuple[Coefficients, float, int], _ModeTables] = {}
-_MODE_TABLES_ROWS = [0]
-_MODE_TABLES_MAX_ROWS = 8192
+_STORES: dict[int, _ModeStore] = {}
+_STORE_MAX_ROWS = 8192
+_STORE_LOCK = threading.Lock()
+
+
+def mode_store(levels: int) -> _ModeStore:
+    """The current ``_ModeStore`` of ladder depth ``levels``."""
+    store = _STORES.get(levels)
+    if store is None or store.used >= _STORE_MAX_ROWS:
+        for slot in [slot for slot in _MODE_TABLES if slot[2] == levels]:
+            del _MODE_TABLES[slot]
+        store = _STORES[levels] = _ModeStore(levels)
+    return store
 
 
 def mode_tables(co: Coefficients, h_s: float, levels: int) -> _ModeTables:
     """The shared ``_ModeTables`` of ``co`` (scalar coefficients) at step ``h_s``."""
+    store = mode_store(levels)
     slot = (co, h_s, levels)
     tables = _MODE_TABLES.get(slot)
     if tables is None:
-        if _MODE_TABLES_ROWS[0] >= _MODE_TABLES_MAX_ROWS:
-            _MODE_TABLES.clear()  # bounded; plants keep their own copies
-            _MODE_TABLES_ROWS[0] = 0
-        tables = _MODE_TABLES[slot] = _ModeTables(levels)
+        tables = _MODE_TABLES[slot] = _ModeTables(store)
     return tables
 
 
@@ -533,20 +586,35 @@ class Plant:
         else:
             self._sets = self.co.members(self.n)
             self._group = np.arange(self.n, dtype=np.int64)
-        self._consts = np.stack(
-            [plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s) for co in self._sets]
-        )
+        g_max = 1.0 / (self.co.n * self.co.eta)
+        self._consts = plant_kernel.pack_consts(self.co, g_max, self.h_s).reshape(-1, N_CONSTS)
+        if self._consts.shape[0] != len(self._sets):  # a batch whose arrays no coefficient takes
+            self._consts = np.repeat(self._consts, len(self._sets), axis=0)
         self._slots = np.full((len(self._sets), N_MODES), -1, dtype=np.int64)
-        self._phis = np.empty((0, self.event_levels + 1, N_X, N_X + 2))
-        self._rates = np.empty((0, 3, N_X + 2))
-        self._n_loaded = 0
+        # The rows of every mode's matrices, shared with other plants (no copy: _slots
+        # index them).
+        self._store = mode_store(self.event_levels)
         self.n_events = 0
         self._last_x: np.ndarray | None = None
         self._last_mech = np.zeros(self.n, dtype=np.int64)
-        # step_members' scratch: a batch of SWEEP_MIN or more sweeps its common case (a set
-        # per member: from each member's columns, which start empty, NaN tags).
+        # step_members' scratch: a batch of SWEEP_MIN or more sweeps its common case.
         self._scratch = plant_kernel.sweep_scratch(self.n)
         self._preload(range(len(self._sets)))
+
+    @property
+    def _phis(self) -> np.ndarray:
+        """The ``phis`` table of the compiled step (``sim.plant_kernel``)."""
+        return self._store.phis
+
+    @property
+    def _rates(self) -> np.ndarray:
+        """The ``rates`` table of the compiled step."""
+        return self._store.rates
+
+    @property
+    def _n_loaded(self) -> int:
+        """How many (parameter set, mode) pairs this plant has the matrices of."""
+        return int(np.count_nonzero(self._slots[: len(self._sets)] >= 0))
 
     def phi(self, key: int, level: int = 0, member: int = 0) -> np.ndarray:
         """``Phi`` (5, 7) of mode ``key`` over ``h_s / 2**level`` for ``member``."""
@@ -577,41 +645,24 @@ class Plant:
         self._preload([g])
         return g
 
-    def _reserve(self, rows: int) -> None:
-        """Room for ``rows`` more modes in the tables (grown by doubling)."""
-        self._phis, self._rates = _with_room(self._phis, self._rates, self._n_loaded, rows)
-
     def _preload(self, groups: Sequence[int]) -> None:
         """Every mode of the parameter sets ``groups`` that an earlier plant with the same
-        coefficients loaded (``mode_tables``) and this one has not, into this plant's tables
-        at once (grown once for them all: a Monte-Carlo batch's new plant has N sets)."""
-        todo = []
+        coefficients loaded (``mode_tables``) and that is in this plant's store."""
         for g in groups:
-            shared = mode_tables(self._sets[g], self.h_s, self.event_levels)
-            keys = [k for k in shared.rows if self._slots[g, k] < 0]
-            if keys:
-                todo.append((g, shared, keys))
-        self._reserve(sum(len(keys) for _, _, keys in todo))
-        row = self._n_loaded
-        for g, shared, keys in todo:
-            src = [shared.rows[k] for k in keys]
-            end = row + len(keys)
-            self._phis[row:end] = shared.phis[src]
-            self._rates[row:end] = shared.rates[src]
-            self._slots[g, keys] = np.arange(row, end)
-            row = end
-        self._n_loaded = row
+            tables = mode_tables(self._sets[g], self.h_s, self.event_levels)
+            if tables.store is self._store:
+                keys, rows = tables.arrays()
+                self._slots[g, keys] = rows
 
     def _load(self, group: int, key: int) -> None:
-        """Put mode ``key``'s matrices (parameter set ``group``) into the step's tables."""
-        shared = mode_tables(self._sets[group], self.h_s, self.event_levels)
-        src = shared.row(key, self._sets[group], self.h_s, self.event_levels)
-        self._reserve(1)
-        row = self._n_loaded
-        self._phis[row] = shared.phis[src]
-        self._rates[row] = shared.rates[src]
+        """Find or compute mode ``key``'s matrices (parameter set ``group``) for the step."""
+        co = self._sets[group]
+        tables = mode_tables(co, self.h_s, self.event_levels)
+        if tables.store is self._store:
+            row = tables.row(key, co, self.h_s)
+        else:  # the shared store was replaced since this plant was made (bounded): its own
+            row = self._store.add(key, co, self.h_s)
         self._slots[group, key] = row
-        self._n_loaded = row + 1
 
     def update(self, t_s: float, x: np.ndarray, u: tuple[Any, Any]) -> np.ndarray:
         """Advance ``x`` (``(n, 5)``) by ``h_s`` with ``u = (duty, enable)`` held (each a

@@ -37,6 +37,7 @@ Tables (``M`` modes loaded so far, ``L = event_levels``, ``G`` parameter sets):
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -65,31 +66,32 @@ _MECH = 225
 _F_STUCK = 2
 
 
-def pack_consts(co: object, g_max: float, h_s: float) -> np.ndarray:
-    """The ``consts`` array of a ``sim.plant.Coefficients`` (scalar coefficients)."""
+def pack_consts(co: object, g_max: Any, h_s: float) -> np.ndarray:
+    """The ``consts`` array of a ``sim.plant.Coefficients``: ``(N_CONSTS,)`` of scalar
+    coefficients, ``(N, N_CONSTS)`` of a batch's (``(N,)`` arrays where they differ; each
+    row the floats of that member's scalar coefficients: the same operations, element by
+    element)."""
     names = (
         "wbm", "wbp", "half", "k", "c", "n", "vs", "r", "ke", "icl", "vd2", "inv_n", "kt",
         "tcm", "bm",
     )  # fmt: skip
-    values = [float(getattr(co, name)) for name in names]
-    values += [float(g_max), float(co.jm), float(co.tcp), float(co.bp), float(co.jp)]
-    values.append(float(h_s))
-    values.append(float(co.eta))
-    values += [float(co.tsm), float(co.wsm), float(co.tsp), float(co.wsp)]
+    values = [getattr(co, name) for name in names]
+    values += [g_max, co.jm, co.tcp, co.bp, co.jp, h_s, co.eta, co.tsm, co.wsm, co.tsp, co.wsp]
     # gate_bounds' coefficients: sums of magnitudes, over |J_m| or |J_p|.
-    kt, r, jm, jp = abs(float(co.kt)), abs(float(co.r)), abs(float(co.jm)), abs(float(co.jp))
+    a = np.abs
+    kt, r, jm, jp = a(co.kt), a(co.r), a(co.jm), a(co.jp)
     values += [
-        abs(float(co.wsm)),
-        (kt * abs(float(co.vs)) / r + abs(float(co.tsm))) / jm,
-        (kt * abs(float(co.ke)) / r + abs(float(co.bm))) / jm,
+        a(co.wsm),
+        (kt * a(co.vs) / r + a(co.tsm)) / jm,
+        (kt * a(co.ke) / r + a(co.bm)) / jm,
         kt / jm,
-        abs(float(g_max)) / jm,
-        abs(float(co.wsp)),
-        abs(float(co.tsp)) / jp,
+        a(g_max) / jm,
+        a(co.wsp),
+        a(co.tsp) / jp,
         2.0 / jp,
-        abs(float(co.bp)) / jp,
+        a(co.bp) / jp,
     ]
-    return np.array(values)
+    return np.stack(np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in values)), axis=-1)
 
 
 @kernel

@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.integrate import solve_ivp
 
-from sim import drivetrain
+from sim import drivetrain, plant_kernel
 from sim.motor import no_load_speed_rad_s, steady_speed_rad_s
 from sim.params import BridgeParams, GearboxParams, MotorParams, PlantParams
 from sim.plant import (
@@ -387,6 +387,12 @@ def test_a_batch_s_coefficients_are_each_member_s_bit_for_bit(seed, stiction):
             x, y = getattr(a, f.name), getattr(b, f.name)
             assert type(x) is type(y) and (x == y), (f.name, x, y)
         assert a == b and hash(a) == hash(b)  # the key of the shared mode tables
+    # and the step's coefficients (Plant packs the batch's arrays at once): each member's
+    consts = Plant(params, n, 2e-3)._consts
+    for k, co in enumerate(alone):
+        one = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), 2e-3)
+        assert one.shape == (plant_kernel.N_CONSTS,)
+        assert np.array_equal(consts[k].view(np.int64), one.view(np.int64)), k
     # A batch whose arrays no coefficient takes (a brake resistor per member): n the same.
     brakes = dataclasses.replace(
         base, supply=dataclasses.replace(base.supply, brake_resistor_ohm=spread(4.0))

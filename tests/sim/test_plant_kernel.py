@@ -185,6 +185,38 @@ def test_a_fresh_plant_loads_modes_as_it_meets_them(duties, enable):
     assert 0 < cold._n_loaded <= len(duties) * (2 * 6 + 2)
 
 
+def test_plants_keep_their_rows_when_the_shared_store_is_replaced(monkeypatch):
+    # The shared rows are bounded: past _STORE_MAX_ROWS a new store starts. A plant made
+    # before keeps its store, finds its modes there and adds the ones it meets later to it;
+    # a plant made after starts empty in the new one. Both step as a plant alone does.
+    monkeypatch.setattr(sim_plant, "_STORES", {})
+    monkeypatch.setattr(sim_plant, "_MODE_TABLES", {})
+    duties = [0.5, -1.0, 0.2, -1.0, 0.0, 0.0, 0.0]  # modes met at 0.2, -1.0 and 0.0
+    x0 = np.array([[2.0, 0.0, 30.0, 0.0, 0.0]])
+
+    def steps(plant: Plant, ds: list[float], x: np.ndarray) -> list[np.ndarray]:
+        xs = []
+        for d in ds:
+            x = plant.update(0.0, x, (d, True))
+            xs.append(x)
+        return xs
+
+    early = Plant(PlantParams(), 1, DT_S)
+    xs_early = steps(early, duties[:3], x0)
+    old_store = early._store
+    met = old_store.used
+    monkeypatch.setattr(sim_plant, "_STORE_MAX_ROWS", met)  # full: the next plant starts anew
+    late = Plant(PlantParams(), 1, DT_S)
+    assert late._store is not old_store and late._n_loaded == 0
+    xs_late = steps(late, duties, x0)
+    xs_early += steps(early, duties[3:], xs_early[-1])
+    assert early._store is old_store and old_store.used > met  # its new modes, in its store
+    monkeypatch.setattr(sim_plant, "_STORE_MAX_ROWS", 8192)
+    alone = steps(Plant(PlantParams(), 1, DT_S), duties, x0)
+    for a, b, c in zip(xs_early, xs_late, alone, strict=True):
+        assert np.array_equal(a, c) and np.array_equal(b, c)
+
+
 def test_plants_with_the_same_coefficients_share_the_modes_met():
     # A second plant with the same coefficients starts with every mode the first loaded (its
     # compiled step does not stop for them), the same numbers; other coefficients do not.
