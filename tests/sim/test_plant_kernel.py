@@ -217,6 +217,35 @@ def test_plants_keep_their_rows_when_the_shared_store_is_replaced(monkeypatch):
         assert np.array_equal(a, c) and np.array_equal(b, c)
 
 
+def test_a_batch_s_sets_are_found_once_and_not_across_stores(monkeypatch):
+    # A Monte-Carlo batch's sets and their tables are kept by the batch's coefficients: a
+    # second plant of the same batch gets the same objects (and every mode the first met);
+    # another batch does not; once the shared store is replaced, not the old tables either.
+    monkeypatch.setattr(sim_plant, "_STORES", {})
+    monkeypatch.setattr(sim_plant, "_MODE_TABLES", {})
+    monkeypatch.setattr(sim_plant, "_BATCH_SETS", {})
+    n = 20
+    params = _params(n, per_member=True)
+    x0 = np.tile(_RUNNING, (n, 1))
+    d, en = np.full(n, _RUNNING_DUTY), np.ones(n, dtype=bool)
+    first = Plant(params, n, DT_S)
+    x_first = first.update(0.0, first.update(0.0, x0, (d, en)), (d, en))
+    second = Plant(params, n, DT_S)
+    assert all(a is b for a, b in zip(second._sets, first._sets, strict=True))
+    assert second._n_loaded == first._n_loaded > 0
+    other = dataclasses.replace(params, motor=dataclasses.replace(params.motor, r_ohm=1.3))
+    assert Plant(other, n, DT_S)._sets[0] is not first._sets[0]
+    x_second = second.update(0.0, second.update(0.0, x0, (d, en)), (d, en))
+    assert np.array_equal(x_first, x_second)
+    monkeypatch.setattr(sim_plant, "_STORE_MAX_ROWS", first._store.used)  # full: a new one
+    third = Plant(params, n, DT_S)
+    assert third._store is not first._store and third._n_loaded == 0
+    kept = [tables for sets, tables in sim_plant._BATCH_SETS.values() if sets[0] is third._sets[0]]
+    assert len(kept) == 1 and all(t.store is third._store for t in kept[0])
+    x_third = third.update(0.0, third.update(0.0, x0, (d, en)), (d, en))
+    assert np.array_equal(x_first, x_third)
+
+
 def test_plants_with_the_same_coefficients_share_the_modes_met():
     # A second plant with the same coefficients starts with every mode the first loaded (its
     # compiled step does not stop for them), the same numbers; other coefficients do not.
