@@ -391,9 +391,13 @@ def mode_store(levels: int) -> _ModeStore:
     """The current ``_ModeStore`` of ladder depth ``levels``."""
     store = _STORES.get(levels)
     if store is None or store.used >= _STORE_MAX_ROWS:
-        for slot in [slot for slot in _MODE_TABLES if slot[2] == levels]:
-            del _MODE_TABLES[slot]
-        store = _STORES[levels] = _ModeStore(levels)
+        with _STORE_LOCK:  # (runs may share a process: one new store, the memo not iterated
+            store = _STORES.get(levels)  # while another thread adds to it)
+            if store is None or store.used >= _STORE_MAX_ROWS:
+                for slot in list(_MODE_TABLES):
+                    if slot[2] == levels:
+                        _MODE_TABLES.pop(slot, None)
+                store = _STORES[levels] = _ModeStore(levels)
     return store
 
 

@@ -217,6 +217,47 @@ def test_plants_keep_their_rows_when_the_shared_store_is_replaced(monkeypatch):
         assert np.array_equal(a, c) and np.array_equal(b, c)
 
 
+def test_plants_in_threads_share_the_store(monkeypatch):
+    # Runs may share a process (a server's threads): plants made and stepped in several
+    # threads at once, the store replaced again and again (a bound of a few rows), step as
+    # a plant alone does, and nothing raises.
+    import threading
+
+    monkeypatch.setattr(sim_plant, "_STORES", {})
+    monkeypatch.setattr(sim_plant, "_MODE_TABLES", {})
+    monkeypatch.setattr(sim_plant, "_BATCH_SETS", {})
+    duties = [0.5, -1.0, 0.2, -1.0, 0.0, 0.0, 0.0, 0.7, -0.4]
+    x0 = np.array([[2.0, 0.0, 30.0, 0.0, 0.0]])
+
+    def steps() -> np.ndarray:
+        plant = Plant(PlantParams(), 1, DT_S)
+        x = x0
+        for d in duties:
+            x = plant.update(0.0, x, (d, True))
+        return x
+
+    alone = steps()
+    monkeypatch.setattr(sim_plant, "_STORE_MAX_ROWS", 3)
+    results: list[np.ndarray] = []
+    errors: list[BaseException] = []
+
+    def worker() -> None:
+        try:
+            for _ in range(5):
+                results.append(steps())
+        except BaseException as exc:  # reported below, not lost in the thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=worker) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and len(results) == 20
+    for x in results:
+        assert np.array_equal(x, alone)
+
+
 def test_a_batch_s_sets_are_found_once_and_not_across_stores(monkeypatch):
     # A Monte-Carlo batch's sets and their tables are kept by the batch's coefficients: a
     # second plant of the same batch gets the same objects (and every mode the first met);
