@@ -45,9 +45,13 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from sim.config import Experiment, ScriptedCommand, load_bench
-from sim.loop import Simulation
-from sim.plant import derivative
+# "this tree" is the tree this script is in, for [5] and [6] too (run in this process): its
+# modules before an installed copy of another checkout's.
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from sim.config import Experiment, ScriptedCommand, load_bench  # noqa: E402
+from sim.loop import Simulation  # noqa: E402
+from sim.plant import derivative  # noqa: E402
 
 BENCH = Path(__file__).resolve().parents[1] / "bench_configs" / "paper_bench.toml"
 
