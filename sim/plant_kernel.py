@@ -645,18 +645,16 @@ def _columns(x, keys, group, level0, slots, phis, rates, consts, s):
         if row < 0:
             f[_TAG * _LANES + ln] = np.nan
             continue
-        m = _C_PHI
-        for r in range(5):
-            for col in (0, 2, 3, 4, 5, 6):
-                f[m * _LANES + ln] = phis[row, level0, r, col]
-                m += 1
-        for col in (0, 2, 3, 4, 5, 6):
-            f[m * _LANES + ln] = rates[row, 2, col]
-            m += 1
-        for r in range(2):
-            for col in (0, 2, 3, 4, 6):
-                f[m * _LANES + ln] = rates[row, r, col]
-                m += 1
+        # the entries _coefficients, _current_row and _speed_row take from the tables
+        c = _coefficients(phis, row, level0)
+        for q in range(len(c)):
+            f[(_C_PHI + q) * _LANES + ln] = c[q]
+        ci = _current_row(rates, row)
+        for q in range(len(ci)):
+            f[(_C_CUR + q) * _LANES + ln] = ci[q]
+        sv = _speed_row(rates, row)
+        for q in range(len(sv)):
+            f[(_C_SPD + q) * _LANES + ln] = sv[q]
         for q in range(consts.shape[1]):
             f[(_C_K + q) * _LANES + ln] = consts[g, q]
         f[_TAG * _LANES + ln] = tag
