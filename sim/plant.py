@@ -622,8 +622,7 @@ class Plant:
             sets, tables = batch_sets(self.co, self.n, self.h_s, self.event_levels)
             self._sets = list(sets)  # add_group appends to it (heat): not to the shared one
             self._group = np.arange(self.n, dtype=np.int64)
-        g_max = 1.0 / (self.co.n * self.co.eta)
-        self._consts = plant_kernel.pack_consts(self.co, g_max, self.h_s).reshape(-1, N_CONSTS)
+        self._consts = plant_kernel.pack_consts(self.co, self.h_s).reshape(-1, N_CONSTS)
         if self._consts.shape[0] != len(self._sets):  # a batch whose arrays no coefficient takes
             self._consts = np.repeat(self._consts, len(self._sets), axis=0)
         self._slots = np.full((len(self._sets), N_MODES), -1, dtype=np.int64)
@@ -677,7 +676,7 @@ class Plant:
             slots = np.full((grow, N_MODES), -1, dtype=np.int64)
             slots[:g] = self._slots
             self._consts, self._slots = consts, slots
-        self._consts[g] = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), self.h_s)
+        self._consts[g] = plant_kernel.pack_consts(co, self.h_s)
         self._preload([g])
         return g
 

@@ -66,11 +66,12 @@ _MECH = 225
 _F_STUCK = 2
 
 
-def pack_consts(co: object, g_max: Any, h_s: float) -> np.ndarray:
+def pack_consts(co: Any, h_s: float) -> np.ndarray:
     """The ``consts`` array of a ``sim.plant.Coefficients``: ``(N_CONSTS,)`` of scalar
     coefficients, ``(N, N_CONSTS)`` of a batch's (``(N,)`` arrays where they differ; each
     row the floats of that member's scalar coefficients: the same operations, element by
     element)."""
+    g_max = 1.0 / (co.n * co.eta)  # the gearbox's largest gain (driving: sim.plant.affine)
     names = (
         "wbm", "wbp", "half", "k", "c", "n", "vs", "r", "ke", "icl", "vd2", "inv_n", "kt",
         "tcm", "bm",

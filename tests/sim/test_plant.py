@@ -390,7 +390,7 @@ def test_a_batch_s_coefficients_are_each_member_s_bit_for_bit(seed, stiction):
     # and the step's coefficients (Plant packs the batch's arrays at once): each member's
     consts = Plant(params, n, 2e-3)._consts
     for k, co in enumerate(alone):
-        one = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), 2e-3)
+        one = plant_kernel.pack_consts(co, 2e-3)
         assert one.shape == (plant_kernel.N_CONSTS,)
         assert np.array_equal(consts[k].view(np.int64), one.view(np.int64)), k
     # A batch whose arrays no coefficient takes (a brake resistor per member): n the same.

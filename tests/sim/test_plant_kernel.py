@@ -363,7 +363,7 @@ def test_the_excursion_gates_quick_bounds_are_never_below_the_gates(
     params = dataclasses.replace(base, motor=motor)
     co = Plant(params, 1, DT_S).co
     co = dataclasses.replace(co, jm=co.jm * jm, jp=co.jp * jp, vs=co.vs * vs)
-    kc = plant_kernel.pack_consts(co, 1.0 / (co.n * co.eta), DT_S)
+    kc = plant_kernel.pack_consts(co, DT_S)
     h = DT_S / (1 << level)
     gates = plant_kernel.gates.py_func(wmax, ai, tbmax, apmax, h, kc)
     bounds = plant_kernel.gate_bounds.py_func(wmax, ai, tbmax, apmax, h, kc)
