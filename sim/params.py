@@ -12,7 +12,6 @@ element. ``PlantParams.member(k)`` picks member ``k`` back out as plain floats.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -43,12 +42,13 @@ def per_member(value: Any, n: int) -> np.ndarray:
     return np.ascontiguousarray(np.broadcast_to(np.asarray(value, dtype=float), (n,)))
 
 
-def _unchecked(obj: Any, changes: dict[str, Any]) -> Any:
-    """A copy of the frozen dataclass ``obj`` with ``changes``, without ``__post_init__``'s
-    checks (``PlantParams.member``: the values come from arrays already checked)."""
-    new = copy.copy(obj)
-    for name, value in changes.items():
-        object.__setattr__(new, name, value)
+def replace_unchecked(obj: Any, changes: dict[str, Any]) -> Any:
+    """A copy of the frozen dataclass ``obj`` with ``changes``, without ``__init__`` and
+    ``__post_init__``'s checks (``PlantParams.member``, ``sim.plant.Coefficients.members``:
+    the values come from a batch's arrays, already checked or computed)."""
+    new = object.__new__(type(obj))  # what copy.copy does for a dataclass without slots
+    new.__dict__.update(vars(obj))
+    new.__dict__.update(changes)
     return new
 
 
@@ -699,8 +699,8 @@ class PlantParams:
                 if isinstance(getattr(part, g.name), np.ndarray)
             }
             if changes:
-                parts[f.name] = _unchecked(part, changes)
-        return _unchecked(self, parts)
+                parts[f.name] = replace_unchecked(part, changes)
+        return replace_unchecked(self, parts)
 
 
 # TOML table path -> dataclass. ``sim.config`` is generic over this and firmware_model's TABLES.

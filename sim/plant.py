@@ -37,7 +37,7 @@ import numpy as np
 from sim import plant_kernel
 from sim.drivetrain import belt_torque_nm, load_factor
 from sim.motor import friction_torque_nm
-from sim.params import PlantParams
+from sim.params import PlantParams, replace_unchecked
 from sim.plant_kernel import N_CONSTS
 
 __all__ = [
@@ -143,16 +143,11 @@ class Coefficients:
         if not varying:  # the batch's arrays are parameters no coefficient takes
             return [self] * n
         columns = [getattr(self, name).tolist() for name in varying]
-        # Copies with the varying fields set (dataclasses.replace would run __init__ again
-        # for each, ~14 us a member; Coefficients has no __post_init__ to run).
-        fixed = {name: value for name, value in vars(self).items() if name not in varying}
-        out = []
-        for row in zip(*columns, strict=True):
-            co = object.__new__(Coefficients)
-            co.__dict__.update(fixed)
-            co.__dict__.update(zip(varying, row, strict=True))
-            out.append(co)
-        return out
+        # (dataclasses.replace would run __init__ again for each, ~14 us a member)
+        return [
+            replace_unchecked(self, dict(zip(varying, row, strict=True)))
+            for row in zip(*columns, strict=True)
+        ]
 
 
 def _friction_piece(region: int, tc: float, wb: float, ts: float, ws: float) -> tuple[float, float]:
